@@ -1,0 +1,43 @@
+# navtopo-bench: `make bench` and `make test` each set everything up on a fresh clone.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+BENCH := $(VENV)/bin/navtopo-bench
+STAMP := $(VENV)/.installed
+# the default benchmark: the paper's scene, every system
+BENCH_SCENARIO ?= corridor_150m
+BENCH_SYSTEMS ?= oracle
+BENCH_OUT ?= results/$(BENCH_SCENARIO)/bench
+
+.PHONY: setup bench test test-slow lint clean
+
+setup: $(STAMP)
+
+# torch first and pinned: 2.13.0 is a CPU build found on local disk; an unpinned torch pulls a
+# multi-GB CUDA build. Then the project (its torch range is satisfied by 2.13.0).
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+bench: setup
+	rm -rf $(BENCH_OUT)
+	$(BENCH) run $(BENCH_SCENARIO) --systems $(BENCH_SYSTEMS) --out $(BENCH_OUT)
+	$(BENCH) report $(BENCH_OUT)
+	cat $(BENCH_OUT)/report/table.md
+
+# pytest exits 5 when it collects no test (e.g. a -k filter that matches none): not a failure
+test: setup
+	$(PY) -m pytest -m "not slow" -n 2 -q $(PYTEST_ARGS); status=$$?; \
+	if [ $$status -eq 5 ]; then echo "pytest: no tests collected"; exit 0; fi; exit $$status
+
+test-slow: setup
+	$(PY) -m pytest -m slow -q
+
+lint: setup
+	$(VENV)/bin/ruff check navtopo baselines scenarios runners reports tests benchmarks tools
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

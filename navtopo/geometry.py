@@ -1,0 +1,90 @@
+"""SE(2) poses as float64 arrays ``[x, y, yaw]``.
+
+One convention throughout the project:
+
+* ``compose(a, b)`` is ``a ⊕ b``: the pose ``b`` (given in frame ``a``) expressed in ``a``'s parent frame.
+* ``between(a, b)`` is ``a⁻¹ ⊕ b``: the pose of ``b`` expressed in the frame of ``a``.
+  An edge ``(u, v, T_uv)`` of the topological graph stores ``T_uv = between(pose_u, pose_v)``.
+* ``transform_points(pose, points)`` maps points given in the frame ``pose`` to its parent frame.
+
+All functions accept a single pose ``(3,)`` or a stack ``(N, 3)`` where noted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Pose2 = NDArray[np.float64]
+
+
+def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
+    """Wrap angles to [-pi, pi)."""
+    wrapped = (np.asarray(angle, dtype=np.float64) + np.pi) % (2.0 * np.pi) - np.pi
+    return float(wrapped) if wrapped.ndim == 0 else wrapped
+
+
+def pose(x: float, y: float, yaw: float) -> Pose2:
+    return np.array([x, y, wrap_angle(yaw)], dtype=np.float64)
+
+
+def compose(a: ArrayLike, b: ArrayLike) -> Pose2:
+    """``a ⊕ b`` for poses (3,) or stacks (N, 3) (broadcast)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    yaw = wrap_angle(a[..., 2] + b[..., 2])
+    return np.stack([x, y, np.asarray(yaw)], axis=-1)
+
+
+def inverse(a: ArrayLike) -> Pose2:
+    """``a⁻¹`` such that ``compose(a, inverse(a))`` is the identity."""
+    a = np.asarray(a, dtype=np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x = -(c * a[..., 0] + s * a[..., 1])
+    y = -(-s * a[..., 0] + c * a[..., 1])
+    yaw = wrap_angle(-a[..., 2])
+    return np.stack([x, y, np.asarray(yaw)], axis=-1)
+
+
+def between(a: ArrayLike, b: ArrayLike) -> Pose2:
+    """The pose of ``b`` in the frame of ``a``: ``a⁻¹ ⊕ b``."""
+    return compose(inverse(a), b)
+
+
+def transform_points(frame_pose: ArrayLike, points: ArrayLike) -> NDArray:
+    """Points (N, 2) or (N, 3) given in ``frame_pose``'s frame -> the parent frame.
+
+    Only x and y are rotated and shifted; a z column passes through. The dtype is kept.
+    """
+    p = np.asarray(points)
+    fp = np.asarray(frame_pose, dtype=np.float64)
+    c, s = np.cos(fp[2]), np.sin(fp[2])
+    out = np.array(p, copy=True)
+    x = p[:, 0].astype(np.float64)
+    y = p[:, 1].astype(np.float64)
+    out[:, 0] = c * x - s * y + fp[0]
+    out[:, 1] = s * x + c * y + fp[1]
+    return out
+
+
+def distance(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64] | float:
+    """Euclidean distance of the translations."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    d = np.hypot(a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
+    return float(d) if d.ndim == 0 else d
+
+
+def to_matrix(a: ArrayLike) -> NDArray[np.float64]:
+    """3x3 homogeneous matrix of a pose."""
+    a = np.asarray(a, dtype=np.float64)
+    c, s = np.cos(a[2]), np.sin(a[2])
+    return np.array([[c, -s, a[0]], [s, c, a[1]], [0.0, 0.0, 1.0]])
+
+
+def from_matrix(m: ArrayLike) -> Pose2:
+    m = np.asarray(m, dtype=np.float64)
+    return np.array([m[0, 2], m[1, 2], np.arctan2(m[1, 0], m[0, 0])], dtype=np.float64)

@@ -1,0 +1,55 @@
+"""Plain data passed between the runner and every navigation system.
+
+These live in ``navtopo`` (the bottom layer) so that systems can use them without importing
+the runner; ``runners.systems`` re-exports them with the ``NavigationSystem`` protocol.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What the robot senses at one tick.
+
+    stamp:  simulation time in seconds.
+    points: (N, 3) float32 lidar returns in the robot frame (x forward, y left, z up from the
+            floor below the robot centre), floor hits included.
+    odom:   (3,) float64 odometry pose [x, y, yaw] in the odometry frame (the first pose of the run).
+    """
+
+    stamp: float
+    points: NDArray[np.float32]
+    odom: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Command:
+    """Velocity command of a unicycle robot: linear m/s (forward), angular rad/s (left)."""
+
+    linear: float = 0.0
+    angular: float = 0.0
+
+
+class Status(str, Enum):
+    ACTIVE = "active"
+    REACHED = "reached"
+    FAILED = "failed"
+
+
+@dataclass
+class NavStatus:
+    state: Status = Status.ACTIVE
+    reason: str = ""
+
+
+@dataclass
+class PlanningStats:
+    """Wall-clock durations of the planning calls of one trial, in milliseconds."""
+
+    planning_ms: list[float] = field(default_factory=list)

@@ -1,0 +1,144 @@
+"""A resolved scenario: the validated file, its ground-truth world, mapping route and trials."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from scenarios.routes import auto_route, polyline_length, waypoint_route
+from scenarios.schema import ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
+from scenarios.trials import Trial, generate_trials, make_trial
+from scenarios.world import World, build_world
+
+BUNDLED_DIR = Path(__file__).resolve().parent / "bundled"
+
+
+@dataclass
+class Scenario:
+    spec: ScenarioSpec
+    path: Path
+    world: World
+    route: NDArray[np.float64]  # (K, 2) mapping route polyline, scenario frame
+    trials: list[Trial] = field(default_factory=list)
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def route_length_m(self) -> float:
+        return polyline_length(self.route)
+
+    @cached_property
+    def passable(self) -> NDArray[np.bool_]:
+        """Cells where the robot's centre may be: free space eroded by the robot radius."""
+        return self.world.eroded(self.spec.robot.radius)
+
+    @property
+    def route_start(self) -> NDArray[np.float64]:
+        """(3,) the pose the mapping run starts at: the first route point, facing along the route."""
+        d = self.route[1] - self.route[0]
+        return np.array([self.route[0, 0], self.route[0, 1], np.arctan2(d[1], d[0])])
+
+    def summary(self) -> dict:
+        distances = [t.shortest_m for t in self.trials]
+        corridor_length = sum(
+            float(np.linalg.norm(np.diff(np.asarray(c.points, float), axis=0), axis=1).sum()) for c in self.spec.world.corridors
+        )
+        xmin, ymin, xmax, ymax = self.world.bounds
+        return {
+            "name": self.name,
+            "description": self.spec.description,
+            "file": str(self.path),
+            "corridor_length_m": round(corridor_length, 3),
+            "free_area_m2": round(self.world.free_area_m2, 3),
+            "route_length_m": round(self.route_length_m, 3),
+            "trial_count": len(self.trials),
+            "trial_distance_mean_m": round(float(np.mean(distances)), 3) if distances else None,
+            "trial_distance_min_m": round(float(np.min(distances)), 3) if distances else None,
+            "trial_distance_max_m": round(float(np.max(distances)), 3) if distances else None,
+            "bounds_m": [round(v, 3) for v in (xmin, ymin, xmax, ymax)],
+            "obstacles": len(self.spec.world.obstacles),
+            "raster": {"resolution": self.world.resolution, "shape": list(self.world.shape)},
+            "sensor_rays": self.spec.sensor.rays,
+        }
+
+
+def bundled_names() -> list[str]:
+    return sorted(p.stem for p in BUNDLED_DIR.glob("*.yaml"))
+
+
+def resolve_path(name_or_path: str | Path) -> Path:
+    """A bundled scenario name, or a path to a YAML file."""
+    candidate = Path(name_or_path)
+    if candidate.suffix in (".yaml", ".yml") or candidate.exists():
+        return candidate
+    bundled = BUNDLED_DIR / f"{name_or_path}.yaml"
+    if bundled.is_file():
+        return bundled
+    raise ScenarioError(str(name_or_path), "", f"no such scenario file, nor a bundled scenario (bundled: {', '.join(bundled_names())})")
+
+
+def _check_point(scenario_file: Path, key: str, xy, world: World, passable: NDArray[np.bool_], radius: float) -> None:
+    cell = world.to_cell(np.asarray(xy, float))
+    if not world.inside(cell) or not passable[tuple(cell)]:
+        clearance = world.clearance_at(np.asarray(xy, float)) if world.inside(cell) else 0.0
+        where = "inside a wall or obstacle" if clearance <= 0 else f"only {clearance:.2f} m from a wall"
+        raise ScenarioError(scenario_file, key, f"{list(xy)} is {where}; the robot (radius {radius} m) needs more room")
+
+
+def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> Scenario:
+    rng = np.random.default_rng(spec.seed)
+    world = build_world(spec.world, path)
+    radius = spec.robot.radius
+    passable = world.eroded(radius)
+    route_spec = spec.mapping_route
+    if route_spec.waypoints is not None:
+        for i, point in enumerate(route_spec.waypoints):
+            _check_point(path, f"mapping_route.waypoints.{i}", point, world, passable, radius)
+        route, bad = waypoint_route(world, passable, np.asarray(route_spec.waypoints, float))
+        if route is None:
+            raise ScenarioError(path, f"mapping_route.waypoints.{bad}", f"not connected to waypoint {bad - 1} through free space wide enough for the robot")
+    else:
+        assert route_spec.auto is not None
+        try:
+            route = auto_route(world, passable, route_spec.auto.min_length, np.random.default_rng(rng.integers(2**32)))
+        except ValueError as exc:
+            raise ScenarioError(path, "mapping_route.auto", str(exc)) from None
+    scenario = Scenario(spec=spec, path=path, world=world, route=route)
+    scenario.__dict__["passable"] = passable
+    if not with_trials:
+        return scenario
+    # trials must be reachable from where the route runs
+    start_cell = world.to_cell(route[0])
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(passable, structure=np.ones((3, 3), bool))
+    reachable = labels == labels[tuple(start_cell)]
+    trial_rng = np.random.default_rng(rng.integers(2**32))
+    if isinstance(spec.trials, TrialsGenerate):
+        gen = spec.trials.generate
+        try:
+            scenario.trials = generate_trials(world, reachable, gen.count, gen.min_distance, trial_rng, gen.max_distance)
+        except ValueError as exc:
+            raise ScenarioError(path, "trials.generate", str(exc)) from None
+    else:
+        for i, t in enumerate(spec.trials):
+            _check_point(path, f"trials.{i}.start", t.start[:2], world, passable, radius)
+            _check_point(path, f"trials.{i}.goal", t.goal, world, passable, radius)
+            trial = make_trial(world, reachable, i, t.start, t.goal)
+            if trial is None:
+                raise ScenarioError(path, f"trials.{i}", "start and goal are not connected to the mapping route through free space wide enough for the robot")
+            scenario.trials.append(trial)
+    return scenario
+
+
+def load_scenario(name_or_path: str | Path, with_trials: bool = True) -> Scenario:
+    """Load, validate and resolve a scenario; raises ``ScenarioError`` with one clear line."""
+    path = resolve_path(name_or_path)
+    spec = read_spec(path)
+    return build_scenario(spec, path, with_trials=with_trials)

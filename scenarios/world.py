@@ -1,0 +1,287 @@
+"""Ground-truth worlds: a free-space raster, the walls around it and the obstacles in it.
+
+Raster convention (shared with ``navtopo.grid_search``): ``free[row, col]``, row ↔ y, col ↔ x, the
+centre of cell (r, c) at ``origin + ((c + 0.5) * res, (r + 0.5) * res)``; ``origin`` is the
+lower-left corner of cell (0, 0).
+
+Shapes: a corridor is its polyline buffered by width/2 with flat end caps and round joins (a
+polyline whose last point equals its first is a ring, with no caps); a room is a rotated
+rectangle; free space = (corridors ∪ rooms) − obstacles. Walls are the boundary of
+corridors ∪ rooms, extruded to ``wall_height``; obstacles are boxes of their own height.
+
+ROS maps (map_server YAML + image): pixel p = value/255, inverted unless ``negate``;
+p ≥ occupied_thresh is occupied, p ≤ free_thresh is free, anything else unknown (a wall here);
+``origin`` is the pose of the lower-left pixel and image row 0 is the largest y. The largest
+connected free component is the world's free space.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import cv2
+import numpy as np
+import shapely
+import yaml
+from numpy.typing import NDArray
+from scipy import ndimage
+from shapely import affinity
+from shapely.geometry import LinearRing, LineString, MultiPolygon, Polygon, box
+from shapely.ops import unary_union
+
+from scenarios.schema import ObstacleSpec, ScenarioError, WorldSpec
+
+PADDING_M = 1.0  # wall margin around the free space in a shape world's raster
+
+
+@dataclass
+class World:
+    resolution: float
+    origin: NDArray[np.float64]  # (2,) lower-left corner of cell (0, 0)
+    free: NDArray[np.bool_]  # (H, W) ground-truth free space (obstacles removed)
+    structure_free: NDArray[np.bool_]  # (H, W) free space before obstacles: walls bound it
+    wall_segments: NDArray[np.float64]  # (S, 2, 2) 2D wall segments, extruded to wall_height
+    wall_height: float
+    ceiling: bool
+    obstacles: list[ObstacleSpec] = field(default_factory=list)
+    geometry: Polygon | MultiPolygon | None = None  # exact free space of a shape world
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.free.shape  # type: ignore[return-value]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the raster, metres."""
+        h, w = self.free.shape
+        x0, y0 = self.origin
+        return (float(x0), float(y0), float(x0 + w * self.resolution), float(y0 + h * self.resolution))
+
+    @property
+    def free_area_m2(self) -> float:
+        if self.geometry is not None:
+            return float(self.geometry.area)
+        return float(self.free.sum()) * self.resolution**2
+
+    @cached_property
+    def clearance(self) -> NDArray[np.float32]:
+        """Distance (m) from each cell centre to the nearest non-free cell (0 outside free space)."""
+        padded = np.pad(self.free, 1, constant_values=False)
+        dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1]
+        # the EDT counts cell centres; half a cell more reaches the obstacle cell's border
+        return np.where(self.free, (dist - 0.5) * self.resolution, 0.0).astype(np.float32)
+
+    def eroded(self, radius: float) -> NDArray[np.bool_]:
+        """Cells where a disc of ``radius`` centred on the cell centre stays in free space."""
+        return self.clearance >= radius
+
+    def to_cell(self, xy: NDArray | tuple[float, float]) -> NDArray[np.int64]:
+        xy = np.asarray(xy, dtype=np.float64)
+        rc = np.floor((xy[..., ::-1] - self.origin[::-1]) / self.resolution).astype(np.int64)
+        return rc
+
+    def to_world(self, cells: NDArray) -> NDArray[np.float64]:
+        cells = np.asarray(cells, dtype=np.float64)
+        return self.origin + (cells[..., ::-1] + 0.5) * self.resolution
+
+    def inside(self, cells: NDArray) -> NDArray[np.bool_]:
+        cells = np.asarray(cells)
+        h, w = self.free.shape
+        return (cells[..., 0] >= 0) & (cells[..., 0] < h) & (cells[..., 1] >= 0) & (cells[..., 1] < w)
+
+    def clearance_at(self, xy: NDArray | tuple[float, float]) -> float:
+        """Clearance at a point (bilinear in the clearance raster; 0 outside the raster)."""
+        rc = (np.asarray(xy, dtype=np.float64)[::-1] - self.origin[::-1]) / self.resolution - 0.5
+        values = ndimage.map_coordinates(self.clearance, rc[:, None], order=1, cval=0.0)
+        return float(values[0])
+
+    @property
+    def wall_mask(self) -> NDArray[np.bool_]:
+        """Non-free cells that touch free space (8-neighbourhood): the GT walls of map checks."""
+        grown = ndimage.binary_dilation(self.free, structure=np.ones((3, 3), bool))
+        return grown & ~self.free
+
+
+# ---------------------------------------------------------------------------------------------
+# shape worlds
+
+
+def corridor_polygon(points: list[tuple[float, float]], width: float) -> Polygon:
+    pts = [tuple(map(float, p)) for p in points]
+    if len(pts) >= 4 and np.allclose(pts[0], pts[-1]):
+        ring = LinearRing(pts[:-1])
+        return ring.buffer(width / 2.0, join_style="round")
+    return LineString(pts).buffer(width / 2.0, cap_style="flat", join_style="round")
+
+
+def rectangle(center: tuple[float, float], size: tuple[float, float], yaw_deg: float) -> Polygon:
+    cx, cy = center
+    sx, sy = size
+    rect = box(cx - sx / 2.0, cy - sy / 2.0, cx + sx / 2.0, cy + sy / 2.0)
+    return affinity.rotate(rect, yaw_deg, origin=(cx, cy)) if yaw_deg else rect
+
+
+def rasterize(geometry: Polygon | MultiPolygon, origin: NDArray, resolution: float, shape: tuple[int, int]) -> NDArray[np.bool_]:
+    """Cells whose centre lies inside ``geometry`` (holes respected): exact centre sampling."""
+    shapely.prepare(geometry)
+    h, w = shape
+    out = np.zeros(shape, dtype=bool)
+    xmin, ymin, xmax, ymax = geometry.bounds
+    c0 = max(int(np.floor((xmin - origin[0]) / resolution)), 0)
+    c1 = min(int(np.ceil((xmax - origin[0]) / resolution)) + 1, w)
+    r0 = max(int(np.floor((ymin - origin[1]) / resolution)), 0)
+    r1 = min(int(np.ceil((ymax - origin[1]) / resolution)) + 1, h)
+    if c1 <= c0 or r1 <= r0:
+        return out
+    xs = origin[0] + (np.arange(c0, c1) + 0.5) * resolution
+    ys = origin[1] + (np.arange(r0, r1) + 0.5) * resolution
+    grid_x, grid_y = np.meshgrid(xs, ys)
+    inside = shapely.contains_xy(geometry, grid_x.ravel(), grid_y.ravel())
+    out[r0:r1, c0:c1] = inside.reshape(grid_x.shape)
+    return out
+
+
+def polygon_segments(geometry: Polygon | MultiPolygon) -> NDArray[np.float64]:
+    polygons = list(geometry.geoms) if isinstance(geometry, MultiPolygon) else [geometry]
+    segments = []
+    for polygon in polygons:
+        for ring in [polygon.exterior, *polygon.interiors]:
+            c = np.asarray(ring.coords)[:, :2]
+            segments.append(np.stack([c[:-1], c[1:]], axis=1))
+    return np.concatenate(segments, axis=0) if segments else np.zeros((0, 2, 2))
+
+
+def shape_world(spec: WorldSpec) -> World:
+    structure = unary_union(
+        [corridor_polygon(c.points, c.width) for c in spec.corridors]
+        + [rectangle(r.center, r.size, r.yaw) for r in spec.rooms]
+    )
+    obstacle_polys = [rectangle(o.center, o.size, o.yaw) for o in spec.obstacles]
+    free_geometry = structure.difference(unary_union(obstacle_polys)) if obstacle_polys else structure
+    xmin, ymin, xmax, ymax = structure.bounds
+    res = spec.resolution
+    origin = np.array([np.floor((xmin - PADDING_M) / res) * res, np.floor((ymin - PADDING_M) / res) * res])
+    shape = (int(np.ceil((ymax + PADDING_M - origin[1]) / res)), int(np.ceil((xmax + PADDING_M - origin[0]) / res)))
+    return World(
+        resolution=res,
+        origin=origin,
+        free=rasterize(free_geometry, origin, res, shape),
+        structure_free=rasterize(structure, origin, res, shape),
+        wall_segments=polygon_segments(structure),
+        wall_height=spec.wall_height,
+        ceiling=spec.ceiling,
+        obstacles=list(spec.obstacles),
+        geometry=free_geometry,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# ROS map_server worlds
+
+
+def read_ros_map(yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml") -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
+    """Free cells (row 0 = lowest y), origin and resolution of a map_server map."""
+    if not yaml_path.is_file():
+        raise ScenarioError(scenario_file, key, f"map file {yaml_path} not found")
+    try:
+        meta = yaml.safe_load(yaml_path.read_text())
+    except yaml.YAMLError as exc:
+        raise ScenarioError(yaml_path, "", f"not valid YAML: {exc}") from None
+    if not isinstance(meta, dict):
+        raise ScenarioError(yaml_path, "", "not a map_server YAML mapping")
+    for required in ("image", "resolution", "origin"):
+        if required not in meta:
+            raise ScenarioError(yaml_path, required, "required key is missing")
+    mode = meta.get("mode", "trinary")
+    if mode not in ("trinary", "scale", "raw"):
+        raise ScenarioError(yaml_path, "mode", f"unknown mode {mode!r}")
+    origin = meta["origin"]
+    if not (isinstance(origin, list) and len(origin) == 3):
+        raise ScenarioError(yaml_path, "origin", "must be [x, y, yaw]")
+    if abs(float(origin[2])) > 1e-9:
+        raise ScenarioError(yaml_path, "origin", "a rotated map origin (yaw != 0) is not supported")
+    resolution = float(meta["resolution"])
+    if resolution <= 0:
+        raise ScenarioError(yaml_path, "resolution", f"must be > 0 (got {resolution})")
+    image_path = (yaml_path.parent / str(meta["image"])).resolve()
+    if not image_path.is_file():
+        raise ScenarioError(yaml_path, "image", f"map image {image_path.name} not found next to {yaml_path.name}")
+    image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
+    if image.ndim == 3:
+        image = image[..., :3].mean(axis=2)
+    image = image.astype(np.float64)
+    scale = 65535.0 if image.max() > 255 else 255.0
+    if mode == "raw":
+        free = image == 0
+    else:
+        p = image / scale if int(meta.get("negate", 0)) else (scale - image) / scale
+        free_thresh = float(meta.get("free_thresh", 0.196))
+        free = p <= free_thresh
+    free = free[::-1].copy()  # image row 0 is the largest y
+    return free, np.array([float(origin[0]), float(origin[1])]), resolution
+
+
+def largest_component(free: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    labels, count = ndimage.label(free, structure=np.ones((3, 3), bool))
+    if count <= 1:
+        return free
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels == int(np.argmax(sizes))
+
+
+def raster_segments(free: NDArray[np.bool_], origin: NDArray, res: float) -> NDArray[np.float64]:
+    """Boundary of a raster's free space as merged axis-aligned 2D segments."""
+    padded = np.pad(free, 1, constant_values=False)
+    segments: list[NDArray] = []
+    # horizontal boundaries between padded rows r-1 and r
+    rows_change = padded[1:, :] != padded[:-1, :]
+    for r in np.nonzero(rows_change.any(axis=1))[0]:
+        line = np.concatenate([[False], rows_change[r], [False]]).astype(np.int8)
+        starts = np.nonzero(np.diff(line) == 1)[0]
+        ends = np.nonzero(np.diff(line) == -1)[0]
+        y = origin[1] + (r) * res  # padded row r boundary == raster row r-1/r boundary
+        x0 = origin[0] + (starts - 1) * res
+        x1 = origin[0] + (ends - 1) * res
+        segments.append(np.stack([np.stack([x0, np.full_like(x0, y)], 1), np.stack([x1, np.full_like(x1, y)], 1)], 1))
+    cols_change = padded[:, 1:] != padded[:, :-1]
+    for c in np.nonzero(cols_change.any(axis=0))[0]:
+        line = np.concatenate([[False], cols_change[:, c], [False]]).astype(np.int8)
+        starts = np.nonzero(np.diff(line) == 1)[0]
+        ends = np.nonzero(np.diff(line) == -1)[0]
+        x = origin[0] + c * res
+        y0 = origin[1] + (starts - 1) * res
+        y1 = origin[1] + (ends - 1) * res
+        segments.append(np.stack([np.stack([np.full_like(y0, x), y0], 1), np.stack([np.full_like(y1, x), y1], 1)], 1))
+    return np.concatenate(segments, axis=0) if segments else np.zeros((0, 2, 2))
+
+
+def map_world(spec: WorldSpec, scenario_file: Path) -> World:
+    assert spec.map is not None
+    free, origin, res = read_ros_map((scenario_file.parent / spec.map.yaml), scenario_file)
+    structure = largest_component(free)
+    if not structure.any():
+        raise ScenarioError(scenario_file, "world.map", "the map has no free cells")
+    free = structure.copy()
+    if spec.obstacles:
+        h, w = free.shape
+        blocked = rasterize(unary_union([rectangle(o.center, o.size, o.yaw) for o in spec.obstacles]), origin, res, (h, w))
+        free &= ~blocked
+    return World(
+        resolution=res,
+        origin=origin,
+        free=free,
+        structure_free=structure,
+        wall_segments=raster_segments(structure, origin, res),
+        wall_height=spec.wall_height,
+        ceiling=spec.ceiling,
+        obstacles=list(spec.obstacles),
+    )
+
+
+def build_world(spec: WorldSpec, scenario_file: Path) -> World:
+    return map_world(spec, scenario_file) if spec.map is not None else shape_world(spec)
