@@ -1,0 +1,234 @@
+"""The path follower of NavTopo, shared by every compared system.
+
+After Muravyev et al. 2021 ("Enhancing exploration algorithms for navigation with visual SLAM"),
+as used in the NavTopo paper (section "Path Following"): compare the robot's heading with the
+direction to the next point of the path; if the difference is large, turn in place toward it,
+otherwise drive forward. Additions, each small and documented:
+
+* the next point is a pure-pursuit lookahead point, ``lookahead`` metres along the path from
+  the robot's progress on it, so gentle bends are taken smoothly;
+* the lookahead point never passes a *corner* (a vertex where the path turns by more than
+  ``corner_angle``) until the robot has come within ``corner_tolerance`` of it or moved past
+  it. Any-angle paths bend at vertices right next to (inflated) obstacles, and a lookahead
+  chord across such a bend would cut toward the wall; with the clip the robot leaves the
+  path by at most about ``corner_tolerance`` at corners;
+* while driving, a proportional angular correction, and a linear speed that falls smoothly to
+  zero as the heading error reaches the turn-in-place threshold (no jump between the modes)
+  and slows over the last ``slowdown_distance`` metres of the path.
+
+The follower is frame-agnostic (path and poses only need to share a frame) and holds no state
+but the progress along the current path: an arc length that never decreases, found by
+projecting the robot onto a window of the path just ahead of it, so the progress cannot jump
+back, nor forward onto a later part of a path that doubles back.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from navtopo.geometry import wrap_angle
+from navtopo.types import Command
+
+
+class FollowerConfig(BaseModel):
+    """Path follower parameters; defaults reproduce the paper's robot (1 m/s, 1.5 rad/s)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    max_linear: float = Field(1.0, gt=0, description="forward speed limit, m/s")
+    max_angular: float = Field(1.5, gt=0, description="turn rate limit, rad/s")
+    turn_in_place_threshold: float = Field(
+        0.5, gt=0, le=math.pi, description="heading error above which the robot turns in place, rad"
+    )
+    angular_gain: float = Field(2.0, ge=0, description="turn rate per heading error, 1/s")
+    lookahead: float = Field(0.6, gt=0, description="distance of the target along the path, m")
+    goal_tolerance: float = Field(0.5, gt=0, description="reached within this of the last point, m")
+    slowdown_distance: float = Field(
+        1.0, ge=0, description="path length before the end over which the speed falls, m"
+    )
+    min_linear: float = Field(0.1, ge=0, description="speed floor while slowing near the end, m/s")
+    corner_angle: float = Field(
+        0.35, ge=0, le=math.pi, description="a vertex turning more than this is a corner, rad"
+    )
+    corner_tolerance: float = Field(
+        0.15, gt=0, description="a corner is passed once the robot is this close to it, m"
+    )
+    progress_window: float = Field(
+        1.5, gt=0, description="how far ahead of the progress the robot is projected, m"
+    )
+
+
+class PathFollower:
+    """Turn-in-place-then-drive follower of a 2-D polyline.
+
+    Usage: ``set_path(waypoints)`` then ``command(pose)`` every tick; ``reached`` becomes True
+    (and commands become zero) once the robot is within ``goal_tolerance`` of the last waypoint.
+    """
+
+    def __init__(self, config: FollowerConfig | None = None) -> None:
+        self.config = config if config is not None else FollowerConfig()
+        self.clear()
+
+    # ---------------------------------------------------------------------------------------
+    # path and state
+    # ---------------------------------------------------------------------------------------
+
+    def set_path(self, waypoints: ArrayLike) -> None:
+        """Follow a new path: (K, 2) float64 points, K >= 1, in the frame of later poses.
+
+        Resets the progress. Repeated consecutive points are dropped.
+        """
+        points = np.asarray(waypoints, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] == 0:
+            raise ValueError(f"waypoints must be (K, 2) with K >= 1, got shape {points.shape}")
+        if not np.isfinite(points).all():
+            raise ValueError("waypoints must be finite")
+        keep = np.ones(len(points), dtype=bool)
+        keep[1:] = np.hypot(*np.diff(points, axis=0).T) > 1e-9
+        points = points[keep]
+        segments = np.diff(points, axis=0)
+        lengths = np.hypot(segments[:, 0], segments[:, 1])
+        self._points = points
+        self._arc = np.concatenate([[0.0], np.cumsum(lengths)])
+        if len(points) > 2:
+            headings = np.arctan2(segments[:, 1], segments[:, 0])
+            turns = np.abs(wrap_angle(np.diff(headings)))
+            self._corner_arc = self._arc[1:-1][turns > self.config.corner_angle]
+        else:
+            self._corner_arc = np.zeros(0, dtype=np.float64)
+        self._progress = 0.0
+        self._next_corner = 0
+        self._reached = False
+
+    def clear(self) -> None:
+        """Forget the path; commands are zero until the next ``set_path``."""
+        self._points = np.zeros((0, 2), dtype=np.float64)
+        self._arc = np.zeros(0, dtype=np.float64)  # arc length at each point
+        self._corner_arc = np.zeros(0, dtype=np.float64)  # arc length of each corner, ascending
+        self._progress = 0.0
+        self._next_corner = 0  # index into _corner_arc of the first corner not yet passed
+        self._reached = False
+
+    @property
+    def has_path(self) -> bool:
+        return len(self._points) > 0
+
+    @property
+    def path(self) -> NDArray[np.float64]:
+        """(K, 2) the path being followed (consecutive duplicates removed)."""
+        return self._points.copy()
+
+    @property
+    def path_length(self) -> float:
+        return float(self._arc[-1]) if self.has_path else 0.0
+
+    @property
+    def progress(self) -> float:
+        """Arc length along the path reached so far, m; never decreases."""
+        return self._progress
+
+    @property
+    def reached(self) -> bool:
+        """True once ``command`` found the robot within ``goal_tolerance`` of the path's end."""
+        return self._reached
+
+    def at_goal(self, pose: ArrayLike) -> bool:
+        """Is the pose (3,) [x, y, yaw] within ``goal_tolerance`` of the last waypoint?"""
+        if not self.has_path:
+            return False
+        x, y = np.asarray(pose, dtype=np.float64)[:2]
+        end_x, end_y = self._points[-1]
+        return math.hypot(end_x - x, end_y - y) <= self.config.goal_tolerance
+
+    # ---------------------------------------------------------------------------------------
+    # control
+    # ---------------------------------------------------------------------------------------
+
+    def command(self, pose: ArrayLike) -> Command:
+        """Velocity command for the robot at pose (3,) [x, y, yaw] (the path's frame)."""
+        if not self.has_path or self._reached:
+            return Command(0.0, 0.0)
+        pose = np.asarray(pose, dtype=np.float64)
+        position = pose[:2]
+        self._advance(position)
+        # the end counts only once the progress is near it: a closed route (a mapping tour)
+        # starts at its own end point
+        near_end = self.path_length - self._progress <= self.config.goal_tolerance + self.config.progress_window
+        if near_end and self.at_goal(pose):
+            self._reached = True
+            self._progress = self.path_length
+            return Command(0.0, 0.0)
+        target = self._point_at(self._target_arc())
+
+        cfg = self.config
+        dx, dy = target - position
+        heading_error = float(wrap_angle(math.atan2(dy, dx) - pose[2]))
+        turn_rate = cfg.angular_gain * heading_error
+        angular = max(-cfg.max_angular, min(cfg.max_angular, turn_rate))
+        if abs(heading_error) >= cfg.turn_in_place_threshold:
+            if angular == 0.0:  # zero gain: still turn, at full rate
+                angular = math.copysign(cfg.max_angular, heading_error)
+            return Command(0.0, angular)
+
+        # full speed when aligned, falling to zero at the turn-in-place threshold
+        alignment = 1.0 - (heading_error / cfg.turn_in_place_threshold) ** 2
+        remaining = self.path_length - self._progress
+        if cfg.slowdown_distance > 0.0:
+            near_end = min(1.0, remaining / cfg.slowdown_distance)
+            speed = max(cfg.max_linear * near_end, min(cfg.min_linear, cfg.max_linear))
+        else:
+            speed = cfg.max_linear
+        return Command(speed * alignment, angular)
+
+    def _advance(self, position: NDArray[np.float64]) -> None:
+        """Move the progress to the robot's projection onto the path window just ahead."""
+        cfg = self.config
+        window_end = self._progress + cfg.progress_window
+        if self._next_corner < len(self._corner_arc):
+            corner_arc = self._corner_arc[self._next_corner]
+            # projection may reach the next unpassed corner but not go beyond it
+            window_end = min(window_end, corner_arc)
+        first = max(int(np.searchsorted(self._arc, self._progress, side="right")) - 1, 0)
+        last = min(int(np.searchsorted(self._arc, window_end, side="left")), len(self._arc) - 1)
+        if last > first:
+            starts = self._points[first:last]
+            vectors = self._points[first + 1 : last + 1] - starts
+            lengths = self._arc[first + 1 : last + 1] - self._arc[first:last]
+            along = np.einsum("ij,ij->i", position - starts, vectors) / lengths
+            low = np.maximum(self._progress - self._arc[first:last], 0.0)
+            high = np.minimum(window_end - self._arc[first:last], lengths)
+            along = np.clip(along, low, np.maximum(low, high))
+            closest = starts + vectors * (along / lengths)[:, None]
+            distances = np.hypot(*(closest - position).T)
+            best = int(np.argmin(distances))
+            self._progress = max(self._progress, float(self._arc[first + best] + along[best]))
+
+        # corners the robot has come close to, or moved past, are done
+        while self._next_corner < len(self._corner_arc):
+            corner_arc = self._corner_arc[self._next_corner]
+            corner = self._point_at(corner_arc)
+            close = math.hypot(*(corner - position)) <= cfg.corner_tolerance
+            if not (close or self._progress >= corner_arc - 1e-9):
+                break
+            self._progress = max(self._progress, corner_arc)
+            self._next_corner += 1
+
+    def _target_arc(self) -> float:
+        target = min(self._progress + self.config.lookahead, self.path_length)
+        if self._next_corner < len(self._corner_arc):
+            target = min(target, self._corner_arc[self._next_corner])
+        return target
+
+    def _point_at(self, arc: float) -> NDArray[np.float64]:
+        """The path point at arc length ``arc`` (clamped to the path)."""
+        if len(self._points) == 1 or arc <= 0.0:
+            return self._points[0].copy()
+        if arc >= self._arc[-1]:
+            return self._points[-1].copy()
+        i = int(np.searchsorted(self._arc, arc, side="right")) - 1
+        fraction = (arc - self._arc[i]) / (self._arc[i + 1] - self._arc[i])
+        return self._points[i] + fraction * (self._points[i + 1] - self._points[i])

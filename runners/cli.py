@@ -1,0 +1,236 @@
+"""The `navtopo-bench` command (DESIGN.md, "Contracts: the command line")."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from scenarios import ScenarioError, bundled_names, load_scenario
+
+app = typer.Typer(
+    help="navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+scenario_app = typer.Typer(help="List, inspect, validate and draw scenarios.", no_args_is_help=True)
+app.add_typer(scenario_app, name="scenario")
+console = Console(width=None if sys.stdout.isatty() else 160)
+err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
+
+
+def fail(message: str, code: int = 2) -> None:
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _load(name: str, with_trials: bool = True):
+    try:
+        return load_scenario(name, with_trials=with_trials)
+    except ScenarioError as exc:
+        fail(str(exc))
+
+
+# ---------------------------------------------------------------------------------------------
+# run
+
+
+@app.command()
+def run(
+    scenarios: Annotated[list[str], typer.Argument(help="bundled scenario names or YAML files")],
+    systems: Annotated[str, typer.Option(help="comma-separated systems (see `config`)")] = "navtopo,metric_grid,oracle",
+    trials: Annotated[int | None, typer.Option(help="run the first N trials (0: mapping only)", min=0)] = None,
+    seed: Annotated[int | None, typer.Option(help="seed of sensor and odometry noise (default: the scenario's)")] = None,
+    seeds: Annotated[str | None, typer.Option(help="comma-separated seeds: one run per seed")] = None,
+    out: Annotated[Path | None, typer.Option(help="results folder (default results/<scenario>/<run-id>)")] = None,
+    resume: Annotated[Path | None, typer.Option(help="finish an interrupted run folder")] = None,
+    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    executor: Annotated[str, typer.Option(help="local or ray")] = "local",
+    ray_address: Annotated[str | None, typer.Option(help="address of a running Ray cluster")] = None,
+    results: Annotated[Path, typer.Option(help="root of the results folders")] = Path("results"),
+) -> None:
+    """Map each scenario's route with every system, then run the navigation trials."""
+    from runners.run import RunOptions, execute
+    from runners.systems import registry
+
+    known = registry()
+    names = [s.strip() for s in systems.split(",") if s.strip()]
+    unknown = [s for s in names if s not in known]
+    if unknown and resume is None:
+        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
+    seed_list: list[int | None] = [seed]
+    if seeds:
+        try:
+            seed_list = [int(s) for s in seeds.split(",") if s.strip()]
+        except ValueError:
+            fail(f"--seeds: not a list of integers: {seeds!r}")
+    if resume is not None and not (resume / "manifest.json").is_file():
+        fail(f"{resume}: not a run folder (manifest.json missing)")
+    if out is not None and (len(scenarios) > 1 or len(seed_list) > 1):
+        fail("--out takes one scenario and one seed; leave it out to get a folder per run")
+    loaded = []
+    for name in scenarios:
+        loaded.append(_load(name))
+    for scenario in loaded:
+        for s in seed_list:
+            options = RunOptions(systems=names, trials=trials, seed=s, out=out, resume=resume, workers=workers,
+                                 executor=executor, ray_address=ray_address, results_root=results)
+            _run_one(scenario, options, execute)
+
+
+def _run_one(scenario, options, execute) -> None:
+    from runners.executors import ExecutorUnavailable
+
+    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
+    with Progress(*columns, console=console, transient=False) as progress:
+        mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
+        total_trials = 0
+        trial_task = None
+
+        def on_mapping(travelled: float, total: float) -> None:
+            progress.update(mapping_task, completed=min(round(travelled), round(total)))
+
+        def on_stage(message: str) -> None:
+            nonlocal trial_task, total_trials
+            if message.startswith("navigation"):
+                total_trials = int(message.split(":")[1].split()[0])
+                progress.update(mapping_task, completed=round(scenario.route_length_m))
+                trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=total_trials)
+
+        def on_trial(record: dict) -> None:
+            if trial_task is not None:
+                progress.advance(trial_task)
+            mark = "[green]ok[/]" if record["success"] else f"[red]{record['reason']}[/]"
+            eff = record["efficiency"]
+            progress.console.print(f"  {record['system']:>12} trial {record['trial']:>3}: {mark}"
+                                   + (f" efficiency {eff:.3f}" if eff is not None else ""), highlight=False)
+
+        try:
+            run_dir = execute(scenario, options, on_mapping=on_mapping, on_trial=on_trial, on_stage=on_stage)
+        except ExecutorUnavailable as exc:
+            fail(str(exc))
+    print_summary(run_dir.root)
+    console.print(f"results: [bold]{run_dir.root}[/]")
+
+
+def print_summary(run_dir: Path) -> None:
+    from reports.tables import COLUMNS, rows
+
+    table = Table(title=f"summary of {run_dir}", show_lines=False)
+    for _, title in COLUMNS:
+        table.add_column(title, justify="right" if title != "system" else "left")
+    for row in rows(run_dir):
+        table.add_row(*[row[key] for key, _ in COLUMNS])
+    console.print(table)
+
+
+# ---------------------------------------------------------------------------------------------
+# scenarios
+
+
+@scenario_app.command("list")
+def scenario_list() -> None:
+    """The bundled scenarios, one line each."""
+    from scenarios.schema import read_spec
+    from scenarios.scenario import resolve_path
+
+    table = Table(show_header=True)
+    table.add_column("name")
+    table.add_column("description")
+    for name in bundled_names():
+        spec = read_spec(resolve_path(name))
+        table.add_row(name, spec.description)
+    console.print(table)
+
+
+@scenario_app.command("show")
+def scenario_show(
+    scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")],
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
+) -> None:
+    """Statistics of a scenario: corridor length, free area, route, trials, bounds."""
+    summary = _load(scenario).summary()
+    if as_json:
+        sys.stdout.write(json.dumps(summary, indent=2) + "\n")
+        return
+    table = Table(show_header=False)
+    for key, value in summary.items():
+        table.add_row(key, str(value))
+    console.print(table)
+
+
+@scenario_app.command("validate")
+def scenario_validate(files: Annotated[list[str], typer.Argument(help="scenario YAML files")]) -> None:
+    """Check scenario files; exit 0, or 2 with one line per bad file."""
+    bad = 0
+    for name in files:
+        try:
+            load_scenario(name)
+        except ScenarioError as exc:
+            bad += 1
+            err.print(str(exc), highlight=False, soft_wrap=True)
+        else:
+            console.print(f"{name}: ok", highlight=False)
+    if bad:
+        raise typer.Exit(2)
+
+
+@scenario_app.command("render")
+def scenario_render(
+    scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write")],
+    no_route: Annotated[bool, typer.Option("--no-route", help="leave out the mapping route")] = False,
+) -> None:
+    """Draw the ground-truth map, obstacles, mapping route and trials."""
+    from scenarios.render import render
+
+    path = render(_load(scenario), output, show_route=not no_route)
+    console.print(f"wrote {path}")
+
+
+# ---------------------------------------------------------------------------------------------
+# reports and configs
+
+
+@app.command()
+def report(run_dirs: Annotated[list[Path], typer.Argument(help="results folders of runs")]) -> None:
+    """Tables of one or more runs (Markdown and CSV under <run>/report/), printed as a table."""
+    from reports.tables import write_tables
+
+    for run_dir in run_dirs:
+        if not (run_dir / "summary.json").is_file():
+            fail(f"{run_dir}: not a finished run folder (summary.json missing)")
+        out = write_tables(run_dir)
+        print_summary(run_dir)
+        console.print(f"tables: {out / 'table.md'}, {out / 'table.csv'}")
+
+
+@app.command()
+def config(system: Annotated[str | None, typer.Argument(help="a system name; all when left out")] = None) -> None:
+    """The resolved configuration a run will use (YAML)."""
+    import yaml
+
+    from runners.systems import registry
+
+    systems = registry()
+    names = [system] if system else sorted(systems)
+    for name in names:
+        if name not in systems:
+            fail(f"unknown system {name!r} (available: {', '.join(sorted(systems))})")
+    data = {name: systems[name].default_config().model_dump(mode="json") for name in names}
+    sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

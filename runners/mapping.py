@@ -1,0 +1,109 @@
+"""Stage 1: drive the mapping route and let every system build its map from the same scans.
+
+A ground-truth route follower (the shared follower on the true pose) moves the robot along the
+scenario's route; systems only observe. Each scan reaches every system in the same tick
+(lock-step); the wall clock of each ``observe`` call is that system's mapping cost.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel
+
+from navtopo.follower import FollowerConfig, PathFollower
+from runners.metrics import edge_errors, stats_ms
+from runners.results import RunDir, disk_bytes, write_json
+from runners.sim import Simulator
+from runners.systems import GroundTruth, SystemContext, SystemEntry
+from scenarios import Scenario
+
+GROWTH_EVERY_M = 10.0
+ROUTE_GOAL_TOLERANCE_M = 0.3
+
+
+@dataclass
+class MappingSystem:
+    entry: SystemEntry
+    config: BaseModel
+
+
+def context_for(entry: SystemEntry, scenario: Scenario, sim: Simulator | None) -> SystemContext:
+    truth = None
+    if entry.privileged:
+        truth = GroundTruth(world=scenario.world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None)
+    return SystemContext(robot=scenario.spec.robot, sensor=scenario.spec.sensor, ground_truth=truth)
+
+
+def run_mapping(
+    scenario: Scenario,
+    systems: list[MappingSystem],
+    run: RunDir,
+    seed: int,
+    progress: Callable[[float, float], None] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """Drive the route once; save each system's map and write ``mapping/<system>.json``."""
+    robot = scenario.spec.robot
+    sim = Simulator(scenario, seed=seed)
+    try:
+        sim.reset(scenario.route_start)
+        instances = {s.entry.name: s.entry.create(s.config, context_for(s.entry, scenario, sim)) for s in systems}
+        follower = PathFollower(FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M))
+        follower.set_path(scenario.route)
+        route_length = scenario.route_length_m
+        max_ticks = int((3.0 * route_length / robot.max_linear + 600.0) * scenario.spec.sensor.rate_hz)
+        observe_ms: dict[str, list[float]] = {name: [] for name in instances}
+        growth: dict[str, list[list[float]]] = {name: [] for name in instances}
+        true_at_stamp: dict[float, np.ndarray] = {}
+        next_growth = 0.0
+        scans = 0
+        for _ in range(max_ticks):
+            obs = sim.observe()
+            true_at_stamp[obs.stamp] = sim.true_pose
+            scans += 1
+            for name, system in instances.items():
+                t0 = time.perf_counter()
+                system.observe(obs)
+                observe_ms[name].append((time.perf_counter() - t0) * 1e3)
+            if sim.travelled_m >= next_growth:
+                for name, system in instances.items():
+                    growth[name].append([round(sim.travelled_m, 2), int(system.mapping_stats().get("map_bytes", 0))])
+                next_growth += GROWTH_EVERY_M
+            if progress is not None:
+                progress(sim.travelled_m, route_length)
+            command = follower.command(sim.true_pose)
+            if follower.reached:
+                break
+            sim.step(command)
+        else:
+            raise RuntimeError(f"mapping route not completed within {max_ticks} ticks")
+        reports: dict[str, dict[str, Any]] = {}
+        for name, system in instances.items():
+            system.finish_mapping()
+            map_dir = run.map_dir(name)
+            system.save(map_dir)
+            stats = dict(system.mapping_stats())
+            growth[name].append([round(sim.travelled_m, 2), int(stats.get("map_bytes", 0))])
+            report: dict[str, Any] = {
+                "scans": scans,
+                "route_length_m": round(sim.travelled_m, 3),
+                "route_plan_length_m": round(route_length, 3),
+                "collisions": sim.collisions,
+                "ms_per_scan": {k: v for k, v in stats_ms(observe_ms[name]).items() if k in ("median", "p95", "mean", "max")},
+                "map_bytes": int(stats.pop("map_bytes", 0)),
+                "map_disk_bytes": disk_bytes(map_dir),
+                "growth": growth[name],
+            }
+            stamped_edges = stats.pop("edges_stamped", None)
+            if stamped_edges is not None:
+                report["edge_error"] = edge_errors(stamped_edges, true_at_stamp)
+            report.update(stats)
+            write_json(run.mapping_path(name), report)
+            reports[name] = report
+        return reports
+    finally:
+        sim.close()

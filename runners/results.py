@@ -1,0 +1,132 @@
+"""The results folder of a run: the one container every tool reads (DESIGN.md, "Contracts").
+
+Writes are atomic (temporary file + rename) except ``trials.jsonl``, which is appended one
+flushed line per finished trial; a torn last line (a crash mid-write) is ignored on reading, so
+``--resume`` loses no finished trial and duplicates none.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+def write_json(path: Path, data: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=2, allow_nan=False)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def read_json(path: Path) -> Any:
+    return json.loads(path.read_text())
+
+
+def quaternion_z(yaw: NDArray) -> NDArray:
+    return np.stack([np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2), np.cos(yaw / 2)], axis=-1)
+
+
+def write_tum(path: Path, rows: NDArray) -> None:
+    """rows (T, 4): time, x, y, yaw -> TUM lines 'timestamp x y z qx qy qz qw' (readable by evo)."""
+    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
+    q = quaternion_z(rows[:, 3])
+    table = np.column_stack([rows[:, 0], rows[:, 1], rows[:, 2], np.zeros(len(rows)), q])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    np.savetxt(tmp, table, fmt="%.6f")
+    os.replace(tmp, path)
+
+
+class RunDir:
+    """``results/<scenario>/<run-id>/`` and the files in it."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+
+    @property
+    def manifest_path(self) -> Path:
+        return self.root / "manifest.json"
+
+    @property
+    def trials_path(self) -> Path:
+        return self.root / "trials.jsonl"
+
+    @property
+    def summary_path(self) -> Path:
+        return self.root / "summary.json"
+
+    def mapping_path(self, system: str) -> Path:
+        return self.root / "mapping" / f"{system}.json"
+
+    def map_dir(self, system: str) -> Path:
+        return self.root / "maps" / system
+
+    def trajectory_path(self, system: str, trial: int, estimate: bool = False) -> Path:
+        return self.root / "trajectories" / system / f"trial-{trial}{'.est' if estimate else ''}.tum"
+
+    def append_trial(self, record: dict[str, Any]) -> None:
+        self.root.mkdir(parents=True, exist_ok=True)
+        line = json.dumps(record, allow_nan=False)
+        with open(self.trials_path, "a") as f:
+            f.write(line + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def read_trials(self) -> list[dict[str, Any]]:
+        """Finished trials, first record of each (system, trial); torn lines skipped."""
+        if not self.trials_path.is_file():
+            return []
+        records, seen = [], set()
+        text = self.trials_path.read_text()
+        lines = text.split("\n")
+        if not text.endswith("\n"):
+            lines = lines[:-1]  # a torn last line: the trial did not finish writing
+        for line in lines:
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            key = (record.get("system"), record.get("trial"))
+            if key in seen:
+                continue
+            seen.add(key)
+            records.append(record)
+        return records
+
+    def repair_trials(self) -> None:
+        """Drop a torn last line so that appends start on a fresh line."""
+        if not self.trials_path.is_file():
+            return
+        text = self.trials_path.read_text()
+        if text and not text.endswith("\n"):
+            keep = text[: text.rfind("\n") + 1]
+            tmp = self.trials_path.with_name(".trials.jsonl.tmp")
+            tmp.write_text(keep)
+            os.replace(tmp, self.trials_path)
+
+
+def disk_bytes(directory: Path) -> int:
+    return sum(p.stat().st_size for p in Path(directory).rglob("*") if p.is_file())
+
+
+def point_latest(run_dir: Path) -> None:
+    """``<parent>/latest`` -> run_dir (a relative symlink, replaced atomically)."""
+    link = run_dir.parent / "latest"
+    tmp = run_dir.parent / f".latest.{os.getpid()}"
+    tmp.unlink(missing_ok=True)
+    os.symlink(run_dir.name, tmp)
+    os.replace(tmp, link)

@@ -1,0 +1,199 @@
+"""One benchmark run: mapping, then navigation trials, then the summary (the `run` command)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import platform
+import socket
+import subprocess
+from collections.abc import Callable
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import psutil
+
+from runners.executors import run_jobs
+from runners.mapping import MappingSystem, run_mapping
+from runners.metrics import summarize
+from runners.navigation import TrialJob, run_trial_job
+from runners.results import RunDir, point_latest, read_json, write_json
+from runners.systems import get_system
+from scenarios import Scenario
+
+PACKAGES = ["numpy", "scipy", "torch", "kiss-icp", "gtsam", "pybullet", "numba", "shapely", "opencv-python-headless", "pydantic"]
+
+
+@dataclass
+class RunOptions:
+    systems: list[str]
+    trials: int | None = None  # first N trials; None = all; 0 = mapping only
+    seed: int | None = None
+    out: Path | None = None
+    resume: Path | None = None
+    workers: int = 1
+    executor: str = "local"
+    ray_address: str | None = None
+    results_root: Path = Path("results")
+
+
+def git_revision() -> str | None:
+    try:
+        here = Path(__file__).resolve().parent
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
+        if rev.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here, capture_output=True, text=True, timeout=5)
+        return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def versions() -> dict[str, str | None]:
+    out: dict[str, str | None] = {"python": platform.python_version()}
+    for name in ["navtopo-bench", *PACKAGES]:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def machine() -> dict[str, Any]:
+    return {
+        "hostname": socket.gethostname(),
+        "platform": platform.platform(),
+        "processor": platform.machine(),
+        "cpus": os.cpu_count(),
+        "memory_bytes": psutil.virtual_memory().total,
+    }
+
+
+def resolved_configs(names: list[str]) -> dict[str, Any]:
+    return {name: get_system(name).default_config().model_dump(mode="json") for name in names}
+
+
+def new_run_dir(options: RunOptions, scenario: Scenario, seed: int) -> RunDir:
+    if options.out is not None:
+        return RunDir(options.out)
+    stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    root = options.results_root / scenario.name / f"{stamp}-s{seed}"
+    suffix = 1
+    while root.exists():
+        suffix += 1
+        root = options.results_root / scenario.name / f"{stamp}-s{seed}-{suffix}"
+    return RunDir(root)
+
+
+def execute(
+    scenario: Scenario,
+    options: RunOptions,
+    on_mapping: Callable[[float, float], None] | None = None,
+    on_trial: Callable[[dict[str, Any]], None] | None = None,
+    on_stage: Callable[[str], None] | None = None,
+) -> RunDir:
+    """Run (or resume) one run of one scenario with one seed; returns its folder."""
+    say = on_stage or (lambda _m: None)
+    if options.resume is not None:
+        run = RunDir(options.resume)
+        manifest = read_json(run.manifest_path)
+        systems = list(manifest["systems"])
+        seed = int(manifest["seed"])
+        trial_count = manifest.get("trial_count")
+        configs = manifest["config"]
+    else:
+        systems = options.systems
+        seed = scenario.spec.seed if options.seed is None else options.seed
+        trial_count = len(scenario.trials) if options.trials is None else min(options.trials, len(scenario.trials))
+        configs = resolved_configs(systems)
+        run = new_run_dir(options, scenario, seed)
+        run.root.mkdir(parents=True, exist_ok=True)
+        write_json(run.manifest_path, {
+            "scenario": {**scenario.summary(), "file": str(scenario.path.resolve())},
+            "systems": systems,
+            "seed": seed,
+            "trial_count": trial_count,
+            "config": configs,
+            "versions": versions(),
+            "git_revision": git_revision(),
+            "machine": machine(),
+            "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+        })
+        if options.out is None:
+            point_latest(run.root)
+    entries = {name: get_system(name) for name in systems}
+
+    # stage 1: mapping (skipped for systems whose map and report are already there)
+    todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
+    if todo:
+        say(f"mapping: {', '.join(todo)}")
+        run_mapping(scenario, [MappingSystem(entries[n], entries[n].config_model.model_validate(configs[n])) for n in todo], run, seed, on_mapping)
+    mapping = {name: read_json(run.mapping_path(name)) for name in systems}
+
+    # stage 2: navigation
+    run.repair_trials()
+    done = {(r["system"], r["trial"]) for r in run.read_trials()}
+    jobs = []
+    for name in systems:
+        pending = [i for i in range(trial_count or 0) if (name, i) not in done]
+        if not pending:
+            continue
+        chunks = [pending[k :: options.workers] for k in range(options.workers)] if options.workers > 1 else [pending]
+        for k, chunk in enumerate(c for c in chunks if c):
+            jobs.append(TrialJob(
+                scenario=str(scenario.path.resolve()), system=name, config=configs[name], map_dir=str(run.map_dir(name).resolve()),
+                trials=chunk, seed=seed, run_dir=str(run.root.resolve()), measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
+            ))
+    if jobs:
+        say(f"navigation: {sum(len(j.trials) for j in jobs)} trials in {len(jobs)} worker job(s)")
+        for job, result, error in run_jobs(run_trial_job, jobs, options.workers, options.executor, options.ray_address):
+            if error is not None:
+                # the whole worker failed (e.g. its map would not load): every trial of it fails with the reason
+                reason = f"error: {type(error).__name__}: {error}".splitlines()[0][:300]
+                for index in job.trials:
+                    trial = scenario.trials[index]
+                    record = failed_record(job.system, index, trial, reason, seed)
+                    run.append_trial(record)
+                    if on_trial:
+                        on_trial(record)
+            elif on_trial:
+                for record in result["records"]:
+                    on_trial(record)
+    write_summary(run, systems, mapping)
+    return run
+
+
+def failed_record(system: str, index: int, trial, reason: str, seed: int) -> dict[str, Any]:
+    import numpy as np
+
+    from runners.metrics import stats_ms
+
+    return {
+        "system": system, "trial": index, "success": False, "reason": reason,
+        "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
+        "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
+        "shortest_m": round(trial.shortest_m, 4), "travelled_m": 0.0, "efficiency": None, "spl": 0.0,
+        "collisions": 0, "sim_time_s": 0.0, "compute_s": 0.0, "planning_ms": stats_ms([]), "planning_ms_samples": [],
+        "final_distance_m": None, "seed": seed,
+    }
+
+
+def write_summary(run: RunDir, systems: list[str], mapping: dict[str, dict]) -> dict[str, Any]:
+    records = run.read_trials()
+    planning = {name: [v for r in records if r["system"] == name for v in r.get("planning_ms_samples", [])] for name in systems}
+    memory = {}
+    for name in systems:
+        nav_path = run.root / "navigation" / f"{name}.json"
+        nav = read_json(nav_path) if nav_path.is_file() else {}
+        memory[name] = {
+            "map_bytes": mapping.get(name, {}).get("map_bytes"),
+            "disk_bytes": mapping.get(name, {}).get("map_disk_bytes"),
+            "rss_bytes": nav.get("rss_bytes"),
+            "loaded_map_bytes": nav.get("map_bytes"),
+        }
+    summary = summarize(records, planning, memory, mapping)
+    summary = {name: summary.get(name, {}) for name in systems}
+    write_json(run.summary_path, summary)
+    return summary
