@@ -1,0 +1,113 @@
+"""The runner end to end: the oracle on `tiny`, an interrupted run resumed, the CLI contracts."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from runners.cli import app
+from runners.results import RunDir
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "runners.cli", *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial(tmp_path):
+    out = tmp_path / "run"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--out", str(out)],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )
+    trials = out / "trials.jsonl"
+    deadline = time.time() + 400
+    while time.time() < deadline and process.poll() is None:
+        if trials.is_file() and trials.read_text().count("\n") >= 1:
+            break
+        time.sleep(0.2)
+    interrupted = process.poll() is None
+    if interrupted:
+        os.killpg(process.pid, signal.SIGKILL)  # the run and its worker processes
+        process.wait()
+        assert not (out / "summary.json").exists()
+    before = RunDir(out).read_trials()
+    assert len(before) >= 1
+
+    result = CliRunner().invoke(app, ["run", "tiny", "--resume", str(out)])
+    assert result.exit_code == 0, result.output
+
+    records = [json.loads(line) for line in trials.read_text().splitlines() if line.strip()]
+    keys = [(r["system"], r["trial"]) for r in records]
+    assert sorted(keys) == [("oracle", 0), ("oracle", 1), ("oracle", 2)]  # none lost, none twice
+    # the oracle succeeds everywhere with near-perfect efficiency against the GT shortest path
+    for r in records:
+        assert r["success"], r
+        assert r["efficiency"] >= 0.9
+        assert r["shortest_m"] > 5.0 and r["travelled_m"] >= 0.9 * r["shortest_m"]
+        assert r["planning_ms"]["count"] >= 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert list(summary) == ["oracle"]
+    assert summary["oracle"]["success_rate"] == 1.0 and summary["oracle"]["efficiency_mean"] >= 0.9
+    assert summary["oracle"]["memory"]["rss_bytes"] is not None
+
+    # the contract's files are there: manifest, mapping report, maps, TUM trajectories
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert {"scenario", "systems", "seed", "config", "versions", "git_revision", "machine", "created"} <= set(manifest)
+    mapping = json.loads((out / "mapping" / "oracle.json").read_text())
+    assert mapping["scans"] > 100 and mapping["route_length_m"] == pytest.approx(mapping["route_plan_length_m"], rel=0.1)
+    assert (out / "maps" / "oracle").is_dir()
+    rows = np.loadtxt(out / "trajectories" / "oracle" / "trial-0.tum")
+    assert rows.shape[1] == 8
+    start = records[[r["trial"] for r in records].index(0)]["start"]
+    assert rows[0, 1:3] == pytest.approx(start[:2], abs=1e-6)
+    assert np.linalg.norm(np.diff(rows[:, 1:3], axis=0), axis=1).sum() == pytest.approx(
+        records[[r["trial"] for r in records].index(0)]["travelled_m"], rel=1e-3)
+
+
+def test_validate_exits_2_with_one_line_per_bad_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("format: navtopo-scenario/1\nname: b\nworld: {corridors: [{points: [[0, 0], [5, 0]], width: -2}]}\nmapping_route: {waypoints: [[0, 0], [4, 0]]}\n")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("format: [unclosed\n")
+    result = cli("scenario", "validate", str(bad), str(broken), str(ROOT / "scenarios" / "bundled" / "tiny.yaml"))
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 2
+    assert lines[0].startswith(f"{bad}: world.corridors.0.width: ")
+    assert lines[1].startswith(f"{broken}: ")
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_run_refuses_a_malformed_scenario_before_writing_anything(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("format: navtopo-scenario/1\nname: b\nworld: {corridors: []}\nmapping_route: {waypoints: [[0, 0], [4, 0]]}\n")
+    result = CliRunner().invoke(app, ["run", str(bad), "--systems", "oracle", "--results", str(tmp_path / "results")])
+    assert result.exit_code == 2
+    assert "bad.yaml: world: needs corridors or rooms, or a map" in result.output
+    assert not (tmp_path / "results").exists()
+
+
+def test_scenario_show_json_reports_the_contract_keys():
+    result = CliRunner().invoke(app, ["scenario", "show", "tiny", "--json"])
+    assert result.exit_code == 0
+    data = json.loads(result.stdout)
+    for key in ("name", "corridor_length_m", "free_area_m2", "route_length_m", "trial_count", "trial_distance_mean_m", "bounds_m"):
+        assert key in data
+    assert data["corridor_length_m"] == pytest.approx(25.0)
+
+
+def test_config_prints_the_resolved_oracle_config():
+    result = CliRunner().invoke(app, ["config", "oracle"])
+    assert result.exit_code == 0
+    assert "oracle:" in result.stdout and "goal_tolerance: 0.5" in result.stdout
