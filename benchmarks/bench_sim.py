@@ -1,6 +1,6 @@
 """Simulation cost per tick: one lidar scan (rayTestBatch) and one motion step, on a scenario.
 
-    .venv/bin/python benchmarks/bench_sim.py corridor_150m --ticks 200
+.venv/bin/python benchmarks/bench_sim.py corridor_150m --ticks 200
 """
 
 from __future__ import annotations
@@ -39,17 +39,22 @@ def main() -> None:
         sim.step(command)
         step_ms.append((time.perf_counter() - t0) * 1e3)
     sim.close()
-    print(json.dumps({
-        "scenario": scenario.name,
-        "rays": scenario.spec.sensor.rays,
-        "mesh_triangles": sim.mesh_triangles,
-        "world_build_s": round(build_s, 3),
-        "ticks": args.ticks,
-        "scan_ms": {"median": round(float(np.median(scan_ms)), 2), "p95": round(float(np.percentile(scan_ms, 95)), 2)},
-        "step_ms": {"median": round(float(np.median(step_ms)), 3), "p95": round(float(np.percentile(step_ms, 95)), 3)},
-        "points_per_scan": int(np.median(points)),
-        "substeps_per_tick": round(1.0 / scenario.spec.sensor.rate_hz / 0.05),
-    }, indent=2))
+    print(
+        json.dumps(
+            {
+                "scenario": scenario.name,
+                "rays": scenario.spec.sensor.rays,
+                "mesh_triangles": sim.mesh_triangles,
+                "world_build_s": round(build_s, 3),
+                "ticks": args.ticks,
+                "scan_ms": {"median": round(float(np.median(scan_ms)), 2), "p95": round(float(np.percentile(scan_ms, 95)), 2)},
+                "step_ms": {"median": round(float(np.median(step_ms)), 3), "p95": round(float(np.percentile(step_ms, 95)), 3)},
+                "points_per_scan": int(np.median(points)),
+                "substeps_per_tick": round(1.0 / scenario.spec.sensor.rate_hz / 0.05),
+            },
+            indent=2,
+        )
+    )
 
 
 if __name__ == "__main__":

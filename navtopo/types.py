@@ -7,7 +7,7 @@ the runner; ``runners.systems`` re-exports them with the ``NavigationSystem`` pr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,7 +36,7 @@ class Command:
     angular: float = 0.0
 
 
-class Status(str, Enum):
+class Status(StrEnum):
     ACTIVE = "active"
     REACHED = "reached"
     FAILED = "failed"

@@ -37,18 +37,20 @@ def rows(run_dir: Path) -> list[dict[str, str]]:
         planning = s.get("planning_ms") or {}
         memory = s.get("memory") or {}
         mapping = s.get("mapping_ms_per_scan") or {}
-        out.append({
-            "system": name,
-            "success": f"{s.get('successes', 0)}/{s.get('trials', 0)}",
-            "efficiency": _num(s.get("efficiency_mean")),
-            "spl": _num(s.get("spl_mean")),
-            "planning_median_ms": _num(planning.get("median"), 2),
-            "planning_p95_ms": _num(planning.get("p95"), 2),
-            "map_mb": _mb(memory.get("map_bytes")),
-            "disk_mb": _mb(memory.get("disk_bytes")),
-            "rss_mb": _mb(memory.get("rss_bytes")),
-            "mapping_ms_per_scan": _num(mapping.get("median"), 2),
-        })
+        out.append(
+            {
+                "system": name,
+                "success": f"{s.get('successes', 0)}/{s.get('trials', 0)}",
+                "efficiency": _num(s.get("efficiency_mean")),
+                "spl": _num(s.get("spl_mean")),
+                "planning_median_ms": _num(planning.get("median"), 2),
+                "planning_p95_ms": _num(planning.get("p95"), 2),
+                "map_mb": _mb(memory.get("map_bytes")),
+                "disk_mb": _mb(memory.get("disk_bytes")),
+                "rss_mb": _mb(memory.get("rss_bytes")),
+                "mapping_ms_per_scan": _num(mapping.get("median"), 2),
+            }
+        )
     return out
 
 

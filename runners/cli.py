@@ -80,8 +80,17 @@ def run(
         loaded.append(_load(name))
     for scenario in loaded:
         for s in seed_list:
-            options = RunOptions(systems=names, trials=trials, seed=s, out=out, resume=resume, workers=workers,
-                                 executor=executor, ray_address=ray_address, results_root=results)
+            options = RunOptions(
+                systems=names,
+                trials=trials,
+                seed=s,
+                out=out,
+                resume=resume,
+                workers=workers,
+                executor=executor,
+                ray_address=ray_address,
+                results_root=results,
+            )
             _run_one(scenario, options, execute)
 
 
@@ -109,8 +118,11 @@ def _run_one(scenario, options, execute) -> None:
                 progress.advance(trial_task)
             mark = "[green]ok[/]" if record["success"] else f"[red]{record['reason']}[/]"
             eff = record["efficiency"]
-            progress.console.print(f"  {record['system']:>12} trial {record['trial']:>3}: {mark}"
-                                   + (f" efficiency {eff:.3f}" if eff is not None else ""), highlight=False)
+            progress.console.print(
+                f"  {record['system']:>12} trial {record['trial']:>3}: {mark}"
+                + (f" efficiency {eff:.3f}" if eff is not None else ""),
+                highlight=False,
+            )
 
         try:
             run_dir = execute(scenario, options, on_mapping=on_mapping, on_trial=on_trial, on_stage=on_stage)
@@ -138,8 +150,8 @@ def print_summary(run_dir: Path) -> None:
 @scenario_app.command("list")
 def scenario_list() -> None:
     """The bundled scenarios, one line each."""
-    from scenarios.schema import read_spec
     from scenarios.scenario import resolve_path
+    from scenarios.schema import read_spec
 
     table = Table(show_header=True)
     table.add_column("name")

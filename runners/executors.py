@@ -29,9 +29,13 @@ def run_local(fn: Callable[[Any], Any], jobs: list[Any], workers: int) -> Iterat
                 yield job, None, exc
 
 
-def run_jobs(fn: Callable[[Any], Any], jobs: list[Any], workers: int, executor: str = "local", address: str | None = None) -> Iterator[tuple[Any, Any, BaseException | None]]:
+def run_jobs(
+    fn: Callable[[Any], Any], jobs: list[Any], workers: int, executor: str = "local", address: str | None = None
+) -> Iterator[tuple[Any, Any, BaseException | None]]:
     if executor == "local":
         return run_local(fn, jobs, workers)
     if executor == "ray":
-        raise ExecutorUnavailable("the ray executor is not part of this version yet (cluster runs are a later milestone); use --executor local")
+        raise ExecutorUnavailable(
+            "the ray executor is not part of this version yet (cluster runs are a later milestone); use --executor local"
+        )
     raise ExecutorUnavailable(f"unknown executor {executor!r} (local, ray)")

@@ -35,7 +35,9 @@ class MappingSystem:
 def context_for(entry: SystemEntry, scenario: Scenario, sim: Simulator | None) -> SystemContext:
     truth = None
     if entry.privileged:
-        truth = GroundTruth(world=scenario.world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None)
+        truth = GroundTruth(
+            world=scenario.world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None
+        )
     return SystemContext(robot=scenario.spec.robot, sensor=scenario.spec.sensor, ground_truth=truth)
 
 
@@ -52,7 +54,9 @@ def run_mapping(
     try:
         sim.reset(scenario.route_start)
         instances = {s.entry.name: s.entry.create(s.config, context_for(s.entry, scenario, sim)) for s in systems}
-        follower = PathFollower(FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M))
+        follower = PathFollower(
+            FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M)
+        )
         follower.set_path(scenario.route)
         route_length = scenario.route_length_m
         max_ticks = int((3.0 * route_length / robot.max_linear + 600.0) * scenario.spec.sensor.rate_hz)

@@ -60,7 +60,9 @@ def _mean_or_none(values: list[float]) -> float | None:
     return round(float(np.mean(values)), 6) if values else None
 
 
-def summarize(records: list[dict[str, Any]], planning_ms: dict[str, list[float]], memory: dict[str, dict], mapping: dict[str, dict]) -> dict[str, Any]:
+def summarize(
+    records: list[dict[str, Any]], planning_ms: dict[str, list[float]], memory: dict[str, dict], mapping: dict[str, dict]
+) -> dict[str, Any]:
     """summary.json: keyed by system name only."""
     systems = sorted({r["system"] for r in records} | set(mapping))
     out: dict[str, Any] = {}

@@ -13,7 +13,6 @@ from __future__ import annotations
 import fcntl
 import gc
 import json
-import os
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -90,7 +89,10 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
             "rss_before_load": rss_before,
         }
         if run is not None and job.measure_memory:
-            write_json(run.root / "navigation" / f"{job.system}.json", {**memory, "disk_bytes": sum(p.stat().st_size for p in Path(job.map_dir).rglob("*") if p.is_file())})
+            write_json(
+                run.root / "navigation" / f"{job.system}.json",
+                {**memory, "disk_bytes": sum(p.stat().st_size for p in Path(job.map_dir).rglob("*") if p.is_file())},
+            )
     finally:
         sim.close()
     return {"system": job.system, "records": records, "memory": memory}

@@ -45,7 +45,9 @@ def git_revision() -> str | None:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
         if rev.returncode != 0:
             return None
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here, capture_output=True, text=True, timeout=5)
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=here, capture_output=True, text=True, timeout=5
+        )
         return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return None
@@ -110,17 +112,20 @@ def execute(
         configs = resolved_configs(systems)
         run = new_run_dir(options, scenario, seed)
         run.root.mkdir(parents=True, exist_ok=True)
-        write_json(run.manifest_path, {
-            "scenario": {**scenario.summary(), "file": str(scenario.path.resolve())},
-            "systems": systems,
-            "seed": seed,
-            "trial_count": trial_count,
-            "config": configs,
-            "versions": versions(),
-            "git_revision": git_revision(),
-            "machine": machine(),
-            "created": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-        })
+        write_json(
+            run.manifest_path,
+            {
+                "scenario": {**scenario.summary(), "file": str(scenario.path.resolve())},
+                "systems": systems,
+                "seed": seed,
+                "trial_count": trial_count,
+                "config": configs,
+                "versions": versions(),
+                "git_revision": git_revision(),
+                "machine": machine(),
+                "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+            },
+        )
         if options.out is None:
             point_latest(run.root)
     entries = {name: get_system(name) for name in systems}
@@ -129,7 +134,13 @@ def execute(
     todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
     if todo:
         say(f"mapping: {', '.join(todo)}")
-        run_mapping(scenario, [MappingSystem(entries[n], entries[n].config_model.model_validate(configs[n])) for n in todo], run, seed, on_mapping)
+        run_mapping(
+            scenario,
+            [MappingSystem(entries[n], entries[n].config_model.model_validate(configs[n])) for n in todo],
+            run,
+            seed,
+            on_mapping,
+        )
     mapping = {name: read_json(run.mapping_path(name)) for name in systems}
 
     # stage 2: navigation
@@ -142,10 +153,18 @@ def execute(
             continue
         chunks = [pending[k :: options.workers] for k in range(options.workers)] if options.workers > 1 else [pending]
         for k, chunk in enumerate(c for c in chunks if c):
-            jobs.append(TrialJob(
-                scenario=str(scenario.path.resolve()), system=name, config=configs[name], map_dir=str(run.map_dir(name).resolve()),
-                trials=chunk, seed=seed, run_dir=str(run.root.resolve()), measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
-            ))
+            jobs.append(
+                TrialJob(
+                    scenario=str(scenario.path.resolve()),
+                    system=name,
+                    config=configs[name],
+                    map_dir=str(run.map_dir(name).resolve()),
+                    trials=chunk,
+                    seed=seed,
+                    run_dir=str(run.root.resolve()),
+                    measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
+                )
+            )
     if jobs:
         say(f"navigation: {sum(len(j.trials) for j in jobs)} trials in {len(jobs)} worker job(s)")
         for job, result, error in run_jobs(run_trial_job, jobs, options.workers, options.executor, options.ray_address):
@@ -171,12 +190,23 @@ def failed_record(system: str, index: int, trial, reason: str, seed: int) -> dic
     from runners.metrics import stats_ms
 
     return {
-        "system": system, "trial": index, "success": False, "reason": reason,
+        "system": system,
+        "trial": index,
+        "success": False,
+        "reason": reason,
         "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
         "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
-        "shortest_m": round(trial.shortest_m, 4), "travelled_m": 0.0, "efficiency": None, "spl": 0.0,
-        "collisions": 0, "sim_time_s": 0.0, "compute_s": 0.0, "planning_ms": stats_ms([]), "planning_ms_samples": [],
-        "final_distance_m": None, "seed": seed,
+        "shortest_m": round(trial.shortest_m, 4),
+        "travelled_m": 0.0,
+        "efficiency": None,
+        "spl": 0.0,
+        "collisions": 0,
+        "sim_time_s": 0.0,
+        "compute_s": 0.0,
+        "planning_ms": stats_ms([]),
+        "planning_ms_samples": [],
+        "final_distance_m": None,
+        "seed": seed,
     }
 
 

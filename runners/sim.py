@@ -53,9 +53,7 @@ def world_mesh(scenario: Scenario) -> tuple[NDArray[np.float64], NDArray[np.int6
     # walls: one quad per segment, vectorised
     a, b = seg[:, 0], seg[:, 1]
     zeros, tops = np.zeros(n), np.full(n, height)
-    wall_v = np.stack(
-        [np.c_[a, zeros], np.c_[b, zeros], np.c_[b, tops], np.c_[a, tops]], axis=1
-    ).reshape(-1, 3)
+    wall_v = np.stack([np.c_[a, zeros], np.c_[b, zeros], np.c_[b, tops], np.c_[a, tops]], axis=1).reshape(-1, 3)
     base = (np.arange(n) * 4)[:, None]
     wall_f = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=0)
     vertices = [wall_v]
@@ -66,8 +64,9 @@ def world_mesh(scenario: Scenario) -> tuple[NDArray[np.float64], NDArray[np.int6
         hx, hy = ob.size[0] / 2.0, ob.size[1] / 2.0
         corners = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]]) @ np.array([[c, s], [-s, c]]) + ob.center
         box_v = np.vstack([np.c_[corners, np.zeros(4)], np.c_[corners, np.full(4, ob.height)]])
-        box_f = np.array([[0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6],
-                          [3, 0, 4], [3, 4, 7], [4, 5, 6], [4, 6, 7]])
+        box_f = np.array(
+            [[0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7], [4, 5, 6], [4, 6, 7]]
+        )
         vertices.append(box_v)
         faces.append(box_f + count)
         count += 8
@@ -118,11 +117,15 @@ class Simulator:
         with tempfile.TemporaryDirectory(prefix="navtopo-sim-") as tmp:
             obj = Path(tmp) / "world.obj"
             write_obj(obj, vertices, faces)
-            shape = pb.createCollisionShape(pb.GEOM_MESH, fileName=str(obj), flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=self.client)
+            shape = pb.createCollisionShape(
+                pb.GEOM_MESH, fileName=str(obj), flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=self.client
+            )
         self.world_body = pb.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape, physicsClientId=self.client)
         self.mesh_triangles = len(faces)
         self.robot_height = min(1.2, scenario.world.wall_height - 2 * ROBOT_FLOOR_GAP_M)
-        robot_shape = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=self.robot_spec.radius, height=self.robot_height, physicsClientId=self.client)
+        robot_shape = pb.createCollisionShape(
+            pb.GEOM_CYLINDER, radius=self.robot_spec.radius, height=self.robot_height, physicsClientId=self.client
+        )
         self.robot_body = pb.createMultiBody(baseMass=0, baseCollisionShapeIndex=robot_shape, physicsClientId=self.client)
         # the lidar must not see the robot's own body: rays test collision group 1 only
         pb.setCollisionFilterGroupMask(self.world_body, -1, WORLD_GROUP, WORLD_GROUP | ROBOT_GROUP, physicsClientId=self.client)
@@ -190,8 +193,11 @@ class Simulator:
         hit = np.empty(len(d), dtype=bool)
         for i in range(0, len(d), MAX_RAYS_PER_CALL):
             results = pb.rayTestBatch(
-                starts[i : i + MAX_RAYS_PER_CALL], ends[i : i + MAX_RAYS_PER_CALL], numThreads=0,
-                collisionFilterMask=WORLD_GROUP, physicsClientId=self.client,
+                starts[i : i + MAX_RAYS_PER_CALL],
+                ends[i : i + MAX_RAYS_PER_CALL],
+                numThreads=0,
+                collisionFilterMask=WORLD_GROUP,
+                physicsClientId=self.client,
             )
             hit[i : i + len(results)] = [r[0] >= 0 for r in results]
             fractions[i : i + len(results)] = [r[2] for r in results]

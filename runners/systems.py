@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -34,8 +34,17 @@ from navtopo.types import Command, NavStatus, Observation, Status
 from scenarios.schema import RobotSpec, SensorSpec
 
 __all__ = [
-    "Command", "GroundTruth", "NavStatus", "NavigationSystem", "Observation", "Status",
-    "SystemContext", "SystemEntry", "register_system", "registry", "get_system",
+    "Command",
+    "GroundTruth",
+    "NavStatus",
+    "NavigationSystem",
+    "Observation",
+    "Status",
+    "SystemContext",
+    "SystemEntry",
+    "register_system",
+    "registry",
+    "get_system",
 ]
 
 
@@ -92,9 +101,13 @@ class SystemEntry:
 _REGISTRY: dict[str, SystemEntry] = {}
 
 
-def register_system(name: str, *, config: type[BaseModel], privileged: bool = False, wants_initial_pose: bool = False, description: str = "") -> Callable[[type], type]:
+def register_system(
+    name: str, *, config: type[BaseModel], privileged: bool = False, wants_initial_pose: bool = False, description: str = ""
+) -> Callable[[type], type]:
     def decorate(cls: type) -> type:
-        _REGISTRY[name] = SystemEntry(name, cls, config, privileged, wants_initial_pose, description or (cls.__doc__ or "").strip().splitlines()[0])
+        _REGISTRY[name] = SystemEntry(
+            name, cls, config, privileged, wants_initial_pose, description or (cls.__doc__ or "").strip().splitlines()[0]
+        )
         return cls
 
     return decorate
@@ -136,7 +149,12 @@ class OracleConfig(BaseModel):
     follower: FollowerConfig = FollowerConfig()
 
 
-@register_system("oracle", config=OracleConfig, privileged=True, description="Theta* on the ground-truth raster + the shared follower: the efficiency upper bound")
+@register_system(
+    "oracle",
+    config=OracleConfig,
+    privileged=True,
+    description="Theta* on the ground-truth raster + the shared follower: the efficiency upper bound",
+)
 class Oracle:
     """Theta* on the ground-truth raster eroded by the robot radius, driven by the shared follower."""
 
@@ -148,7 +166,9 @@ class Oracle:
         self.world = context.ground_truth.world
         self.passable_tight = self.world.eroded(context.robot.radius)
         self.passable = self.world.eroded(context.robot.radius + config.clearance_margin)
-        follower_config = config.follower.model_copy(update={"max_linear": context.robot.max_linear, "max_angular": context.robot.max_angular})
+        follower_config = config.follower.model_copy(
+            update={"max_linear": context.robot.max_linear, "max_angular": context.robot.max_angular}
+        )
         self.follower = PathFollower(follower_config)
         self.status = NavStatus()
         self.goal_world: NDArray[np.float64] | None = None

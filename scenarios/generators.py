@@ -61,7 +61,11 @@ def dress(corridors: list[dict], rng: np.random.Generator, spacing: float = 4.5)
                     size = (float(rng.uniform(2.5, 4.0)), float(rng.uniform(2.0, 3.5)))
                 offset = width / 2.0 + size[1] / 2.0 - 0.05
                 c = centre + normal * side * offset
-                feature = {"center": [round(float(c[0]), 3), round(float(c[1]), 3)], "size": [round(size[0], 3), round(size[1], 3)], "yaw": round(yaw, 3)}
+                feature = {
+                    "center": [round(float(c[0]), 3), round(float(c[1]), 3)],
+                    "size": [round(size[0], 3), round(size[1], 3)],
+                    "yaw": round(yaw, 3),
+                }
                 footprint = rectangle(feature["center"], feature["size"], feature["yaw"])
                 ok = not footprint.buffer(0.8).intersects(others) and not any(footprint.buffer(0.6).intersects(t) for t in taken)
                 if ok:
@@ -80,7 +84,12 @@ def dress(corridors: list[dict], rng: np.random.Generator, spacing: float = 4.5)
                     height = float(rng.choice([0.3, 0.45, 0.8, 1.1, 1.6, 2.0]))
                 offset = width / 2.0 - size[1] / 2.0 - 0.02
                 c = centre + normal * side * offset
-                feature = {"center": [round(float(c[0]), 3), round(float(c[1]), 3)], "size": [round(size[0], 3), round(size[1], 3)], "height": height, "yaw": round(yaw, 3)}
+                feature = {
+                    "center": [round(float(c[0]), 3), round(float(c[1]), 3)],
+                    "size": [round(size[0], 3), round(size[1], 3)],
+                    "height": height,
+                    "yaw": round(yaw, 3),
+                }
                 footprint = rectangle(feature["center"], feature["size"], feature["yaw"])
                 ok = not footprint.buffer(1.5).intersects(others) and not any(footprint.buffer(1.0).intersects(t) for t in taken)
                 if ok:
@@ -122,12 +131,27 @@ def grow_tree(total_length: float, rng: np.random.Generator, widths: tuple[float
                 clash = True
         if clash:
             continue
-        corridors.append({"points": [[round(float(start[0]), 3), round(float(start[1]), 3)], [round(float(end[0]), 3), round(float(end[1]), 3)]], "width": width})
+        corridors.append(
+            {
+                "points": [
+                    [round(float(start[0]), 3), round(float(start[1]), 3)],
+                    [round(float(end[0]), 3), round(float(end[1]), 3)],
+                ],
+                "width": width,
+            }
+        )
         remaining -= float(np.linalg.norm(np.round(end, 3) - np.round(start, 3)))
     return corridors
 
 
-def corridor_tree(total_length: float, seed: int = 0, route_factor: float = 6.0, trials: int = 20, min_distance: float | None = None, name: str | None = None) -> dict:
+def corridor_tree(
+    total_length: float,
+    seed: int = 0,
+    route_factor: float = 6.0,
+    trials: int = 20,
+    min_distance: float | None = None,
+    name: str | None = None,
+) -> dict:
     """A scenario dict (format 1) of a dressed corridor tree; ``scenarios.schema.parse_spec`` reads it."""
     rng = np.random.default_rng(seed)
     corridors = grow_tree(total_length, rng)
@@ -139,5 +163,10 @@ def corridor_tree(total_length: float, seed: int = 0, route_factor: float = 6.0,
         "seed": seed,
         "world": {"resolution": 0.05, "wall_height": 2.6, "corridors": corridors, "rooms": rooms, "obstacles": obstacles},
         "mapping_route": {"auto": {"min_length": round(route_factor * total_length, 1)}},
-        "trials": {"generate": {"count": trials, "min_distance": round(min_distance if min_distance is not None else 0.3 * total_length, 1)}},
+        "trials": {
+            "generate": {
+                "count": trials,
+                "min_distance": round(min_distance if min_distance is not None else 0.3 * total_length, 1),
+            }
+        },
     }

@@ -25,7 +25,16 @@ def draw_world(ax: plt.Axes, scenario: Scenario) -> None:
     cmap = matplotlib.colormaps["viridis"]
     for ob in world.obstacles:
         poly = rectangle(ob.center, ob.size, ob.yaw)
-        ax.add_patch(PolygonPatch(np.asarray(poly.exterior.coords), closed=True, facecolor=cmap(norm(ob.height)), edgecolor="black", linewidth=0.4, zorder=3))
+        ax.add_patch(
+            PolygonPatch(
+                np.asarray(poly.exterior.coords),
+                closed=True,
+                facecolor=cmap(norm(ob.height)),
+                edgecolor="black",
+                linewidth=0.4,
+                zorder=3,
+            )
+        )
     if world.obstacles:
         sm = cm.ScalarMappable(norm=norm, cmap=cmap)
         bar = plt.colorbar(sm, ax=ax, fraction=0.025, pad=0.01)
@@ -40,8 +49,15 @@ def render(scenario: Scenario, output: Path, show_route: bool = True, show_trial
     fig, ax = plt.subplots(figsize=(width, min(height, 14.0)))
     draw_world(ax, scenario)
     if show_route and len(scenario.route) > 1:
-        ax.plot(scenario.route[:, 0], scenario.route[:, 1], color="tab:orange", linewidth=0.8, alpha=0.7, zorder=4,
-                label=f"mapping route ({scenario.route_length_m:.0f} m)")
+        ax.plot(
+            scenario.route[:, 0],
+            scenario.route[:, 1],
+            color="tab:orange",
+            linewidth=0.8,
+            alpha=0.7,
+            zorder=4,
+            label=f"mapping route ({scenario.route_length_m:.0f} m)",
+        )
     if show_trials and scenario.trials:
         tab = matplotlib.colormaps["tab20"]
         for trial in scenario.trials:
@@ -49,10 +65,24 @@ def render(scenario: Scenario, output: Path, show_route: bool = True, show_trial
             path = trial.shortest_path
             ax.plot(path[:, 0], path[:, 1], linestyle="--", linewidth=0.9, color=colour, zorder=5)
             x, y, yaw = trial.start
-            ax.annotate("", xy=(x + 0.9 * np.cos(yaw), y + 0.9 * np.sin(yaw)), xytext=(x, y),
-                        arrowprops={"arrowstyle": "-|>", "color": colour, "lw": 1.2}, zorder=6)
+            ax.annotate(
+                "",
+                xy=(x + 0.9 * np.cos(yaw), y + 0.9 * np.sin(yaw)),
+                xytext=(x, y),
+                arrowprops={"arrowstyle": "-|>", "color": colour, "lw": 1.2},
+                zorder=6,
+            )
             ax.plot([x], [y], "o", color=colour, markersize=3.5, zorder=6)
-            ax.plot([trial.goal[0]], [trial.goal[1]], "*", color=colour, markersize=8, markeredgecolor="black", markeredgewidth=0.4, zorder=6)
+            ax.plot(
+                [trial.goal[0]],
+                [trial.goal[1]],
+                "*",
+                color=colour,
+                markersize=8,
+                markeredgecolor="black",
+                markeredgewidth=0.4,
+                zorder=6,
+            )
             ax.text(trial.goal[0], trial.goal[1] + 0.5, str(trial.index), fontsize=6, ha="center", zorder=7)
         ax.plot([], [], "o", color="gray", markersize=4, label="trial start (arrow: heading)")
         ax.plot([], [], "*", color="gray", markersize=8, label="trial goal")
@@ -64,8 +94,12 @@ def render(scenario: Scenario, output: Path, show_route: bool = True, show_trial
     summary = scenario.summary()
     mean = summary["trial_distance_mean_m"]
     ax.set_title(
-        f"{scenario.name}: " + (f"{summary['corridor_length_m']:.0f} m of corridor, " if summary["corridor_length_m"] else "") + f"{summary['free_area_m2']:.0f} m² free, "
-        f"{len(scenario.trials)} trials" + (f" (mean {mean:.1f} m)" if mean else ""), fontsize=10)
+        f"{scenario.name}: "
+        + (f"{summary['corridor_length_m']:.0f} m of corridor, " if summary["corridor_length_m"] else "")
+        + f"{summary['free_area_m2']:.0f} m² free, "
+        f"{len(scenario.trials)} trials" + (f" (mean {mean:.1f} m)" if mean else ""),
+        fontsize=10,
+    )
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")

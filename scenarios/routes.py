@@ -75,8 +75,10 @@ def _prune_spurs(skeleton: NDArray[np.bool_], max_cells: int, passes: int = 2) -
                 nxt = [
                     (current[0] + dr, current[1] + dc)
                     for dr, dc in offsets
-                    if 0 <= current[0] + dr < h and 0 <= current[1] + dc < w
-                    and skeleton[current[0] + dr, current[1] + dc] and (current[0] + dr, current[1] + dc) != previous
+                    if 0 <= current[0] + dr < h
+                    and 0 <= current[1] + dc < w
+                    and skeleton[current[0] + dr, current[1] + dc]
+                    and (current[0] + dr, current[1] + dc) != previous
                     and (current[0] + dr, current[1] + dc) not in branch
                 ]
                 if len(nxt) != 1 or degree[nxt[0]] >= 3:
@@ -85,9 +87,11 @@ def _prune_spurs(skeleton: NDArray[np.bool_], max_cells: int, passes: int = 2) -
                 branch.append(current)
             else:
                 continue  # long branch: a real dead end, keep it
-            ends_at_junction = any(degree[rr, cc] >= 3 for rr, cc in (
-                (branch[-1][0] + dr, branch[-1][1] + dc) for dr, dc in offsets)
-                if 0 <= rr < h and 0 <= cc < w)
+            ends_at_junction = any(
+                degree[rr, cc] >= 3
+                for rr, cc in ((branch[-1][0] + dr, branch[-1][1] + dc) for dr, dc in offsets)
+                if 0 <= rr < h and 0 <= cc < w
+            )
             if ends_at_junction:
                 for cell in branch:
                     skeleton[cell] = False

@@ -80,7 +80,9 @@ def resolve_path(name_or_path: str | Path) -> Path:
     bundled = BUNDLED_DIR / f"{name_or_path}.yaml"
     if bundled.is_file():
         return bundled
-    raise ScenarioError(str(name_or_path), "", f"no such scenario file, nor a bundled scenario (bundled: {', '.join(bundled_names())})")
+    raise ScenarioError(
+        str(name_or_path), "", f"no such scenario file, nor a bundled scenario (bundled: {', '.join(bundled_names())})"
+    )
 
 
 def _check_point(scenario_file: Path, key: str, xy, world: World, passable: NDArray[np.bool_], radius: float) -> None:
@@ -102,7 +104,11 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
             _check_point(path, f"mapping_route.waypoints.{i}", point, world, passable, radius)
         route, bad = waypoint_route(world, passable, np.asarray(route_spec.waypoints, float))
         if route is None:
-            raise ScenarioError(path, f"mapping_route.waypoints.{bad}", f"not connected to waypoint {bad - 1} through free space wide enough for the robot")
+            raise ScenarioError(
+                path,
+                f"mapping_route.waypoints.{bad}",
+                f"not connected to waypoint {bad - 1} through free space wide enough for the robot",
+            )
     else:
         assert route_spec.auto is not None
         try:
@@ -132,7 +138,11 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
             _check_point(path, f"trials.{i}.goal", t.goal, world, passable, radius)
             trial = make_trial(world, reachable, i, t.start, t.goal)
             if trial is None:
-                raise ScenarioError(path, f"trials.{i}", "start and goal are not connected to the mapping route through free space wide enough for the robot")
+                raise ScenarioError(
+                    path,
+                    f"trials.{i}",
+                    "start and goal are not connected to the mapping route through free space wide enough for the robot",
+                )
             scenario.trials.append(trial)
     return scenario
 

@@ -187,7 +187,7 @@ def parse_spec(data: Any, file: str | Path) -> ScenarioSpec:
     except ValidationError as exc:
         errors = exc.errors()
         # with a union ('trials'), prefer the branch error that names a real key
-        errors.sort(key=lambda e: (e["type"] == "list_type" or e["type"] == "model_type"))
+        errors.sort(key=lambda e: e["type"] == "list_type" or e["type"] == "model_type")
         first = errors[0]
         raise ScenarioError(file, _key(first["loc"]), _reason(first)) from None
 

@@ -35,7 +35,9 @@ class Trial:
         }
 
 
-def make_trial(world: World, passable: NDArray[np.bool_], index: int, start_deg: tuple[float, float, float], goal: tuple[float, float]) -> Trial | None:
+def make_trial(
+    world: World, passable: NDArray[np.bool_], index: int, start_deg: tuple[float, float, float], goal: tuple[float, float]
+) -> Trial | None:
     path = shortest_path(world, passable, np.array(start_deg[:2]), np.array(goal))
     if path is None:
         return None
@@ -69,7 +71,13 @@ def generate_trials(
         yaw_deg = float(rng.uniform(-180.0, 180.0))
         if np.hypot(*(goal_xy - start_xy)) > (max_distance if max_distance is not None else np.inf):
             continue
-        trial = make_trial(world, passable, len(trials), (float(start_xy[0]), float(start_xy[1]), yaw_deg), (float(goal_xy[0]), float(goal_xy[1])))
+        trial = make_trial(
+            world,
+            passable,
+            len(trials),
+            (float(start_xy[0]), float(start_xy[1]), yaw_deg),
+            (float(goal_xy[0]), float(goal_xy[1])),
+        )
         if trial is None or trial.shortest_m < min_distance:
             continue
         if max_distance is not None and trial.shortest_m > max_distance:

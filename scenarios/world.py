@@ -155,8 +155,7 @@ def polygon_segments(geometry: Polygon | MultiPolygon) -> NDArray[np.float64]:
 
 def shape_world(spec: WorldSpec) -> World:
     structure = unary_union(
-        [corridor_polygon(c.points, c.width) for c in spec.corridors]
-        + [rectangle(r.center, r.size, r.yaw) for r in spec.rooms]
+        [corridor_polygon(c.points, c.width) for c in spec.corridors] + [rectangle(r.center, r.size, r.yaw) for r in spec.rooms]
     )
     obstacle_polys = [rectangle(o.center, o.size, o.yaw) for o in spec.obstacles]
     free_geometry = structure.difference(unary_union(obstacle_polys)) if obstacle_polys else structure
@@ -181,7 +180,9 @@ def shape_world(spec: WorldSpec) -> World:
 # ROS map_server worlds
 
 
-def read_ros_map(yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml") -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
+def read_ros_map(
+    yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml"
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
     """Free cells (row 0 = lowest y), origin and resolution of a map_server map."""
     if not yaml_path.is_file():
         raise ScenarioError(scenario_file, key, f"map file {yaml_path} not found")

@@ -28,7 +28,10 @@ def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial
     out = tmp_path / "run"
     process = subprocess.Popen(
         [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--out", str(out)],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )
     trials = out / "trials.jsonl"
     deadline = time.time() + 400
@@ -72,12 +75,17 @@ def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial
     start = records[[r["trial"] for r in records].index(0)]["start"]
     assert rows[0, 1:3] == pytest.approx(start[:2], abs=1e-6)
     assert np.linalg.norm(np.diff(rows[:, 1:3], axis=0), axis=1).sum() == pytest.approx(
-        records[[r["trial"] for r in records].index(0)]["travelled_m"], rel=1e-3)
+        records[[r["trial"] for r in records].index(0)]["travelled_m"], rel=1e-3
+    )
 
 
 def test_validate_exits_2_with_one_line_per_bad_file(tmp_path):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("format: navtopo-scenario/1\nname: b\nworld: {corridors: [{points: [[0, 0], [5, 0]], width: -2}]}\nmapping_route: {waypoints: [[0, 0], [4, 0]]}\n")
+    bad.write_text(
+        "format: navtopo-scenario/1\nname: b\n"
+        "world: {corridors: [{points: [[0, 0], [5, 0]], width: -2}]}\n"
+        "mapping_route: {waypoints: [[0, 0], [4, 0]]}\n"
+    )
     broken = tmp_path / "broken.yaml"
     broken.write_text("format: [unclosed\n")
     result = cli("scenario", "validate", str(bad), str(broken), str(ROOT / "scenarios" / "bundled" / "tiny.yaml"))
@@ -102,7 +110,15 @@ def test_scenario_show_json_reports_the_contract_keys():
     result = CliRunner().invoke(app, ["scenario", "show", "tiny", "--json"])
     assert result.exit_code == 0
     data = json.loads(result.stdout)
-    for key in ("name", "corridor_length_m", "free_area_m2", "route_length_m", "trial_count", "trial_distance_mean_m", "bounds_m"):
+    for key in (
+        "name",
+        "corridor_length_m",
+        "free_area_m2",
+        "route_length_m",
+        "trial_count",
+        "trial_distance_mean_m",
+        "bounds_m",
+    ):
         assert key in data
     assert data["corridor_length_m"] == pytest.approx(25.0)
 

@@ -77,8 +77,13 @@ def test_map_image_missing_names_the_map_file(tmp_path):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.dictionaries(st.sampled_from(["format", "name", "world", "robot", "sensor", "trials", "seed", "bogus"]),
-                       st.one_of(st.none(), st.integers(), st.text(max_size=5), st.lists(st.integers(), max_size=3)), max_size=5))
+@given(
+    st.dictionaries(
+        st.sampled_from(["format", "name", "world", "robot", "sensor", "trials", "seed", "bogus"]),
+        st.one_of(st.none(), st.integers(), st.text(max_size=5), st.lists(st.integers(), max_size=3)),
+        max_size=5,
+    )
+)
 def test_the_parser_never_raises_anything_but_a_scenario_error(data):
     try:
         parse_spec(data, "fuzz.yaml")
@@ -87,12 +92,15 @@ def test_the_parser_never_raises_anything_but_a_scenario_error(data):
 
 
 def test_raster_areas_of_known_shapes_match_their_geometry():
-    world = build_world(WorldSpec(
-        resolution=0.05,
-        corridors=[{"points": [[0, 0], [10, 0]], "width": 2.0}],
-        rooms=[{"center": [5, 6], "size": [4, 3], "yaw": 30}],
-        obstacles=[{"center": [3, 0], "size": [0.5, 0.4], "height": 1.0}],
-    ), Path("x.yaml"))
+    world = build_world(
+        WorldSpec(
+            resolution=0.05,
+            corridors=[{"points": [[0, 0], [10, 0]], "width": 2.0}],
+            rooms=[{"center": [5, 6], "size": [4, 3], "yaw": 30}],
+            obstacles=[{"center": [3, 0], "size": [0.5, 0.4], "height": 1.0}],
+        ),
+        Path("x.yaml"),
+    )
     expected = 10 * 2 + 4 * 3 - 0.5 * 0.4
     assert world.free_area_m2 == pytest.approx(expected, rel=1e-9)
     assert world.free.sum() * 0.05**2 == pytest.approx(expected, rel=0.01)

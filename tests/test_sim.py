@@ -19,8 +19,12 @@ def box_room(tmp_path: Path, noise=None, ceiling=True, range_noise=0.0) -> Path:
         "format": "navtopo-scenario/1",
         "name": "room",
         "seed": 5,
-        "world": {"ceiling": ceiling, "wall_height": 2.6, "rooms": [{"center": [0, 0], "size": [8, 6], "yaw": 0}],
-                  "obstacles": [{"center": [3.0, 2.0], "size": [0.4, 0.4], "height": 0.3}]},
+        "world": {
+            "ceiling": ceiling,
+            "wall_height": 2.6,
+            "rooms": [{"center": [0, 0], "size": [8, 6], "yaw": 0}],
+            "obstacles": [{"center": [3.0, 2.0], "size": [0.4, 0.4], "height": 0.3}],
+        },
         "sensor": {"range_noise": range_noise},
         "odometry": {"noise": noise},
         "mapping_route": {"waypoints": [[-3, 0], [3, 0]]},
@@ -57,7 +61,9 @@ def test_lidar_ranges_match_the_analytic_distances_in_a_box_room(tmp_path):
         # every ray of the sensor, rotated into the world, against the walls / floor / ceiling
         directions = sim.directions
         c, s = np.cos(pose[2]), np.sin(pose[2])
-        world_dirs = np.stack([c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1], directions[:, 2]], 1)
+        world_dirs = np.stack(
+            [c * directions[:, 0] - s * directions[:, 1], s * directions[:, 0] + c * directions[:, 1], directions[:, 2]], 1
+        )
         origin = np.array([pose[0], pose[1], mount])
         expected = np.array([expected_range(origin, d, (4.0, 3.0), 2.6) for d in world_dirs])
         measured = np.linalg.norm(points - np.array([0, 0, mount], np.float32), axis=1)

@@ -1,0 +1,268 @@
+"""The topological graph of NavTopo: locations and the relative poses between them.
+
+Muravyev & Yakovlev, Sec. "Graph Structure": a vertex is a location ``v = (grid_v, desc_v)`` —
+here with its creation stamp and the odometry pose at creation (a hint for drift-gated
+localization, never a global position); an edge ``e = (u, v, T_uv)`` stores the pose of v's
+observation point in u's frame (``navtopo.geometry.between``), and its inverse for the way back.
+Dijkstra weighs an edge by the length of its translation.
+
+On disk a graph is a folder: ``graph.json`` (format, vertices, edges), ``grids/<id>.png`` (one
+lossless PNG per vertex grid) and ``descriptors.npy`` ((V, D) float32). ``load`` refuses a
+corrupt or partial folder with one ``GraphFormatError`` line naming the file, key and reason.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from navtopo.geometry import compose, inverse
+from navtopo.local_grid import CroppedGrid, decode_png, encode_png
+
+FORMAT = "navtopo-graph/1"
+EDGE_BYTES = 2 * 8 + 3 * 8  # neighbour id + owner id (int64) and the relative pose (3 float64)
+
+
+class GraphFormatError(ValueError):
+    """A saved graph that cannot be loaded; ``str(error)`` is the one line for a user."""
+
+
+@dataclass
+class Vertex:
+    grid: CroppedGrid
+    pose_hint: NDArray[np.float64]  # (3,) odometry pose at creation, odometry frame
+    stamp: float
+
+
+class TopologicalGraph:
+    """Vertices with grids and descriptors, edges with relative poses (both directions)."""
+
+    def __init__(self, descriptor_dim: int) -> None:
+        self.descriptor_dim = int(descriptor_dim)
+        self.vertices: list[Vertex] = []
+        self._descriptors = np.zeros((0, self.descriptor_dim), dtype=np.float32)
+        self._adjacency: list[dict[int, NDArray[np.float64]]] = []
+
+    # -- structure -------------------------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return len(self.vertices)
+
+    @property
+    def descriptors(self) -> NDArray[np.float32]:
+        return self._descriptors[: len(self.vertices)]
+
+    def add_vertex(self, grid: CroppedGrid, descriptor: ArrayLike, pose_hint: ArrayLike, stamp: float) -> int:
+        descriptor = np.asarray(descriptor, dtype=np.float32).reshape(-1)
+        if descriptor.shape != (self.descriptor_dim,):
+            raise ValueError(f"descriptor of shape {descriptor.shape}, expected ({self.descriptor_dim},)")
+        index = len(self.vertices)
+        if index == len(self._descriptors):  # grow the descriptor matrix geometrically
+            grown = np.zeros((max(16, 2 * index), self.descriptor_dim), dtype=np.float32)
+            grown[:index] = self._descriptors[:index]
+            self._descriptors = grown
+        self._descriptors[index] = descriptor
+        self.vertices.append(Vertex(grid, np.asarray(pose_hint, dtype=np.float64).copy(), float(stamp)))
+        self._adjacency.append({})
+        return index
+
+    def add_edge(self, u: int, v: int, pose_uv: ArrayLike) -> None:
+        """Connect u and v; ``pose_uv`` is v's observation point in u's frame."""
+        if u == v:
+            raise ValueError("no self-loops")
+        pose_uv = np.asarray(pose_uv, dtype=np.float64).copy()
+        self._adjacency[u][v] = pose_uv
+        self._adjacency[v][u] = inverse(pose_uv)
+
+    def remove_edge(self, u: int, v: int) -> None:
+        self._adjacency[u].pop(v, None)
+        self._adjacency[v].pop(u, None)
+
+    def has_edge(self, u: int, v: int) -> bool:
+        return v in self._adjacency[u]
+
+    def edge(self, u: int, v: int) -> NDArray[np.float64]:
+        """T_uv: the pose of v's observation point in u's frame."""
+        return self._adjacency[u][v].copy()
+
+    def neighbours(self, u: int) -> list[tuple[int, NDArray[np.float64]]]:
+        return [(v, pose.copy()) for v, pose in self._adjacency[u].items()]
+
+    def edges(self) -> list[tuple[int, int, NDArray[np.float64]]]:
+        """Each undirected edge once, as (u, v, T_uv) with u < v."""
+        return [(u, v, pose.copy()) for u, adj in enumerate(self._adjacency) for v, pose in adj.items() if u < v]
+
+    @property
+    def edge_count(self) -> int:
+        return sum(len(adj) for adj in self._adjacency) // 2
+
+    # -- search ----------------------------------------------------------------------------------
+
+    def dijkstra(self, source: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Distances (translation lengths) from ``source`` to every vertex and the predecessors."""
+        n = len(self.vertices)
+        dist = np.full(n, np.inf)
+        prev = np.full(n, -1, dtype=np.int64)
+        dist[source] = 0.0
+        heap = [(0.0, source)]
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > dist[u]:
+                continue
+            for v, pose in self._adjacency[u].items():
+                nd = d + float(np.hypot(pose[0], pose[1]))
+                if nd < dist[v]:
+                    dist[v] = nd
+                    prev[v] = u
+                    heapq.heappush(heap, (nd, v))
+        return dist, prev
+
+    def shortest_path(self, source: int, target: int) -> tuple[list[int] | None, float]:
+        dist, prev = self.dijkstra(source)
+        if not np.isfinite(dist[target]):
+            return None, float("inf")
+        path = [target]
+        while path[-1] != source:
+            path.append(int(prev[path[-1]]))
+        return path[::-1], float(dist[target])
+
+    def path_pose(self, path: list[int]) -> NDArray[np.float64]:
+        """The last vertex of ``path`` in the first one's frame, composed along the edges."""
+        pose = np.zeros(3)
+        for u, v in zip(path[:-1], path[1:], strict=True):
+            pose = compose(pose, self._adjacency[u][v])
+        return pose
+
+    def nearest(self, descriptor: ArrayLike, k: int) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """The k vertices whose descriptors are nearest (Euclidean) to ``descriptor``."""
+        n = len(self.vertices)
+        if n == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.float32)
+        query = np.asarray(descriptor, dtype=np.float32).reshape(1, -1)
+        distances = np.linalg.norm(self.descriptors - query, axis=1)
+        k = min(k, n)
+        order = np.argpartition(distances, k - 1)[:k]
+        order = order[np.argsort(distances[order])]
+        return order.astype(np.int64), distances[order].astype(np.float32)
+
+    # -- memory ----------------------------------------------------------------------------------
+
+    @property
+    def nbytes(self) -> int:
+        """Exact bytes of the map's data: grids, descriptors, pose hints, stamps, edges."""
+        n = len(self.vertices)
+        grids = sum(v.grid.nbytes for v in self.vertices)
+        return int(grids + self.descriptors.nbytes + n * 3 * 8 + n * 8 + 2 * self.edge_count * EDGE_BYTES)
+
+    # -- files -----------------------------------------------------------------------------------
+
+    def save(self, directory: Path, extra: dict[str, Any] | None = None) -> None:
+        """Write the folder (atomically per file; graph.json last, so a partial folder is refused)."""
+        directory = Path(directory)
+        (directory / "grids").mkdir(parents=True, exist_ok=True)
+        for i, vertex in enumerate(self.vertices):
+            _atomic_write(directory / "grids" / f"{i:06d}.png", encode_png(vertex.grid.cells) if vertex.grid.cells.size else b"")
+        with tempfile.NamedTemporaryFile(dir=directory, suffix=".npy", delete=False) as f:
+            np.save(f, self.descriptors)
+        os.replace(f.name, directory / "descriptors.npy")
+        data = {
+            "format": FORMAT,
+            "descriptor_dim": self.descriptor_dim,
+            "vertices": [
+                {
+                    "id": i,
+                    "stamp": v.stamp,
+                    "pose_hint": [float(x) for x in v.pose_hint],
+                    "grid": {
+                        "file": f"grids/{i:06d}.png",
+                        "row0": v.grid.row0,
+                        "col0": v.grid.col0,
+                        "size": v.grid.size,
+                        "shape": list(v.grid.cells.shape),
+                    },
+                }
+                for i, v in enumerate(self.vertices)
+            ],
+            "edges": [[u, v, *[float(x) for x in pose]] for u, v, pose in self.edges()],
+            **(extra or {}),
+        }
+        _atomic_write(directory / "graph.json", (json.dumps(data, indent=1) + "\n").encode())
+
+    @classmethod
+    def load(cls, directory: Path) -> tuple[TopologicalGraph, dict[str, Any]]:
+        """The graph and the extra keys saved with it; ``GraphFormatError`` on a bad folder."""
+        directory = Path(directory)
+        index = directory / "graph.json"
+        if not index.is_file():
+            raise GraphFormatError(f"{index}: missing (not a NavTopo graph folder, or a partial save)")
+        try:
+            data = json.loads(index.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise GraphFormatError(f"{index}: not valid JSON ({exc})") from None
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise GraphFormatError(
+                f"{index}: format: expected {FORMAT!r}, got {data.get('format') if isinstance(data, dict) else None!r}"
+            )
+        try:
+            dim = int(data["descriptor_dim"])
+            vertices, edges = list(data["vertices"]), list(data["edges"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise GraphFormatError(f"{index}: {exc}: required key missing or of the wrong type") from None
+        descriptors_path = directory / "descriptors.npy"
+        try:
+            descriptors = np.load(descriptors_path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise GraphFormatError(f"{descriptors_path}: cannot read ({exc})") from None
+        if descriptors.shape != (len(vertices), dim):
+            raise GraphFormatError(
+                f"{descriptors_path}: shape {descriptors.shape}, expected ({len(vertices)}, {dim}) from graph.json"
+            )
+        graph = cls(dim)
+        for i, entry in enumerate(vertices):
+            key = f"vertices.{i}"
+            try:
+                grid_entry = entry["grid"]
+                png = directory / grid_entry["file"]
+                shape = tuple(grid_entry["shape"])
+                if shape == (0, 0):
+                    cells = np.zeros((0, 0), np.uint8)
+                else:
+                    try:
+                        cells = decode_png(png.read_bytes())
+                    except FileNotFoundError:
+                        raise GraphFormatError(f"{png}: missing ({key} of {index})") from None
+                    except ValueError as exc:
+                        raise GraphFormatError(f"{png}: corrupt grid image ({exc})") from None
+                    if cells.shape != shape:
+                        raise GraphFormatError(f"{png}: grid of shape {cells.shape}, expected {shape} from {index}")
+                grid = CroppedGrid(cells, int(grid_entry["row0"]), int(grid_entry["col0"]), int(grid_entry["size"]))
+                graph.add_vertex(grid, descriptors[i], np.asarray(entry["pose_hint"], float), float(entry["stamp"]))
+            except GraphFormatError:
+                raise
+            except (KeyError, TypeError, ValueError) as exc:
+                raise GraphFormatError(f"{index}: {key}: bad entry ({exc})") from None
+        for j, edge in enumerate(edges):
+            try:
+                u, v = int(edge[0]), int(edge[1])
+                if not (0 <= u < len(graph) and 0 <= v < len(graph)):
+                    raise ValueError(f"vertex id out of range ({u}, {v})")
+                graph.add_edge(u, v, np.asarray(edge[2:5], float))
+            except (TypeError, ValueError, IndexError) as exc:
+                raise GraphFormatError(f"{index}: edges.{j}: bad edge ({exc})") from None
+        extra = {k: v for k, v in data.items() if k not in ("format", "descriptor_dim", "vertices", "edges")}
+        return graph, extra
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
