@@ -1,7 +1,8 @@
 """The path follower of NavTopo, shared by every compared system.
 
-After Muravyev et al. 2021 ("Enhancing exploration algorithms for navigation with visual SLAM"),
-as used in the NavTopo paper (section "Path Following"): compare the robot's heading with the
+After K. Muravyev et al. 2021, cited by the NavTopo paper as ``muravyev2021enhancing``
+("Enhancing exploration algorithms for navigation with visual SLAM"), as used in the paper's
+section "Path Following": compare the robot's heading with the
 direction to the next point of the path; if the difference is large, turn in place toward it,
 otherwise drive forward. Additions, each small and documented:
 
@@ -39,34 +40,27 @@ class FollowerConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    max_linear: float = Field(1.0, gt=0, description="forward speed limit, m/s")
-    max_angular: float = Field(1.5, gt=0, description="turn rate limit, rad/s")
+    max_linear: float = Field(default=1.0, gt=0, description="forward speed limit, m/s")
+    max_angular: float = Field(default=1.5, gt=0, description="turn rate limit, rad/s")
     turn_in_place_threshold: float = Field(
-        0.5, gt=0, le=math.pi, description="heading error above which the robot turns in place, rad"
+        default=0.5, gt=0, le=math.pi, description="heading error above which the robot turns in place, rad"
     )
-    angular_gain: float = Field(2.0, ge=0, description="turn rate per heading error, 1/s")
-    lookahead: float = Field(0.6, gt=0, description="distance of the target along the path, m")
-    goal_tolerance: float = Field(0.5, gt=0, description="reached within this of the last point, m")
-    slowdown_distance: float = Field(
-        1.0, ge=0, description="path length before the end over which the speed falls, m"
-    )
-    min_linear: float = Field(0.1, ge=0, description="speed floor while slowing near the end, m/s")
-    corner_angle: float = Field(
-        0.35, ge=0, le=math.pi, description="a vertex turning more than this is a corner, rad"
-    )
-    corner_tolerance: float = Field(
-        0.15, gt=0, description="a corner is passed once the robot is this close to it, m"
-    )
-    progress_window: float = Field(
-        1.5, gt=0, description="how far ahead of the progress the robot is projected, m"
-    )
+    angular_gain: float = Field(default=2.0, ge=0, description="turn rate per heading error, 1/s")
+    lookahead: float = Field(default=0.6, gt=0, description="distance of the target along the path, m")
+    goal_tolerance: float = Field(default=0.5, gt=0, description="reached within this of the last point, m")
+    slowdown_distance: float = Field(default=1.0, ge=0, description="path length before the end over which the speed falls, m")
+    min_linear: float = Field(default=0.1, ge=0, description="speed floor while slowing near the end, m/s")
+    corner_angle: float = Field(default=0.35, ge=0, le=math.pi, description="a vertex turning more than this is a corner, rad")
+    corner_tolerance: float = Field(default=0.15, gt=0, description="a corner is passed once the robot is this close to it, m")
+    progress_window: float = Field(default=1.5, gt=0, description="how far ahead of the progress the robot is projected, m")
 
 
 class PathFollower:
     """Turn-in-place-then-drive follower of a 2-D polyline.
 
     Usage: ``set_path(waypoints)`` then ``command(pose)`` every tick; ``reached`` becomes True
-    (and commands become zero) once the robot is within ``goal_tolerance`` of the last waypoint.
+    (and commands become zero) once the robot is within ``goal_tolerance`` of the last waypoint
+    and has followed the path to near its end (so a closed route is driven all the way round).
     """
 
     def __init__(self, config: FollowerConfig | None = None) -> None:
@@ -133,7 +127,8 @@ class PathFollower:
 
     @property
     def reached(self) -> bool:
-        """True once ``command`` found the robot within ``goal_tolerance`` of the path's end."""
+        """True once ``command`` found the robot within ``goal_tolerance`` of the path's end,
+        with its progress along the path within ``goal_tolerance + progress_window`` of it."""
         return self._reached
 
     def at_goal(self, pose: ArrayLike) -> bool:
@@ -155,16 +150,15 @@ class PathFollower:
         pose = np.asarray(pose, dtype=np.float64)
         position = pose[:2]
         self._advance(position)
-        # the end counts only once the progress is near it: a closed route (a mapping tour)
-        # starts at its own end point
-        near_end = self.path_length - self._progress <= self.config.goal_tolerance + self.config.progress_window
+        # The end counts only once the progress is near it: a closed route (a mapping tour)
+        # starts at its own end point, and a path that doubles back may pass close to its end.
+        cfg = self.config
+        near_end = self.path_length - self._progress <= cfg.goal_tolerance + cfg.progress_window
         if near_end and self.at_goal(pose):
             self._reached = True
             self._progress = self.path_length
             return Command(0.0, 0.0)
         target = self._point_at(self._target_arc())
-
-        cfg = self.config
         dx, dy = target - position
         heading_error = float(wrap_angle(math.atan2(dy, dx) - pose[2]))
         turn_rate = cfg.angular_gain * heading_error
@@ -178,8 +172,8 @@ class PathFollower:
         alignment = 1.0 - (heading_error / cfg.turn_in_place_threshold) ** 2
         remaining = self.path_length - self._progress
         if cfg.slowdown_distance > 0.0:
-            near_end = min(1.0, remaining / cfg.slowdown_distance)
-            speed = max(cfg.max_linear * near_end, min(cfg.min_linear, cfg.max_linear))
+            end_factor = min(1.0, remaining / cfg.slowdown_distance)
+            speed = max(cfg.max_linear * end_factor, min(cfg.min_linear, cfg.max_linear))
         else:
             speed = cfg.max_linear
         return Command(speed * alignment, angular)

@@ -1,0 +1,185 @@
+"""The path follower drives a simulated unicycle along paths (ground truth: the path itself)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from navtopo import grid_search
+from navtopo.follower import FollowerConfig, PathFollower
+from navtopo.geometry import compose, transform_points, wrap_angle
+
+L_PATH = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0]])
+
+
+def polyline_length(points: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(points, axis=0).T).sum())
+
+
+def distance_to_polyline(point: np.ndarray, points: np.ndarray) -> float:
+    a, b = points[:-1], points[1:]
+    t = np.clip(np.einsum("ij,ij->i", point - a, b - a) / np.einsum("ij,ij->i", b - a, b - a), 0, 1)
+    return float(np.hypot(*(a + t[:, None] * (b - a) - point).T).min())
+
+
+def drive(follower: PathFollower, pose, dt: float = 0.1, max_steps: int = 600):
+    """Integrate a unicycle under the follower's commands until it reports `reached`."""
+    pose = np.asarray(pose, dtype=np.float64).copy()
+    poses, commands = [pose.copy()], []
+    for _ in range(max_steps):
+        command = follower.command(pose)
+        commands.append(command)
+        if follower.reached:
+            break
+        pose[0] += command.linear * math.cos(pose[2]) * dt
+        pose[1] += command.linear * math.sin(pose[2]) * dt
+        pose[2] = wrap_angle(pose[2] + command.angular * dt)
+        poses.append(pose.copy())
+    return np.array(poses), commands
+
+
+def test_config_defaults_and_unknown_keys():
+    config = FollowerConfig()
+    assert (config.max_linear, config.max_angular, config.lookahead, config.goal_tolerance) == (
+        1.0,
+        1.5,
+        0.6,
+        0.5,
+    )
+    with pytest.raises(ValidationError):
+        FollowerConfig(max_speed=2.0)
+    with pytest.raises(ValidationError):
+        FollowerConfig(max_linear=-1.0)
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.2])
+def test_robot_facing_away_turns_in_place_then_follows_an_l_path_to_its_end(dt):
+    config = FollowerConfig()
+    follower = PathFollower(config)
+    follower.set_path(L_PATH)
+    poses, commands = drive(follower, [0.0, 0.0, math.pi], dt=dt)
+
+    # at first it turns in place (linear exactly 0) until the heading error toward the path
+    # (+x, the robot is still at its start) falls below the threshold, then it drives
+    first_move = next(i for i, c in enumerate(commands) if c.linear > 0.0)
+    error = np.abs(wrap_angle(poses[: first_move + 1, 2]))
+    assert first_move >= int(2.0 / (config.max_angular * dt))  # turning pi - 0.5 rad takes time
+    assert all(c.linear == 0.0 and abs(c.angular) > 0.5 for c in commands[:first_move])
+    assert (error[:first_move] >= config.turn_in_place_threshold).all()
+    assert error[first_move] < config.turn_in_place_threshold
+    assert np.allclose(poses[: first_move + 1, :2], 0.0)  # no translation while turning
+
+    assert follower.reached and follower.at_goal(poses[-1])
+    assert np.hypot(*(poses[-1, :2] - L_PATH[-1])) <= config.goal_tolerance
+    travelled = polyline_length(poses[:, :2])
+    assert travelled <= 1.05 * polyline_length(L_PATH)
+    # the corner is not cut: the robot stays close to the path all along
+    assert max(distance_to_polyline(p, L_PATH) for p in poses[:, :2]) < 0.2
+    assert commands[-1].linear == 0.0 and commands[-1].angular == 0.0
+    assert follower.command(poses[-1]).linear == 0.0  # stays stopped
+
+
+def test_following_a_theta_star_path_around_a_wall_keeps_clear_of_it():
+    # 8 m x 12 m room at 0.05 m, a 0.2 m wall from the bottom edge up to y = 5.5 m
+    resolution, radius = 0.05, 0.3
+    rows, cols = np.mgrid[0:160, 0:240]
+    x, y = (cols + 0.5) * resolution, (rows + 0.5) * resolution
+    room = ~((x > 5.9) & (x < 6.1) & (y < 5.5))
+    free = grid_search.inflate_free(room, radius, resolution)
+    start, goal = np.array([3.0, 1.0, 0.0]), np.array([9.0, 1.0])
+    cells = grid_search.theta_star(
+        free,
+        grid_search.world_to_cell(start[:2], (0.0, 0.0), resolution),
+        grid_search.world_to_cell(goal, (0.0, 0.0), resolution),
+    )
+    path = grid_search.cell_to_world(cells, (0.0, 0.0), resolution)
+    path[-1] = goal  # the planner's last vertex is the goal's cell centre: end on the goal itself
+
+    follower = PathFollower()
+    follower.set_path(path)
+    poses, _ = drive(follower, start)
+    assert follower.reached and np.hypot(*(poses[-1, :2] - goal)) <= 0.5
+    assert polyline_length(poses[:, :2]) <= 1.05 * polyline_length(path)
+    gap_x = np.maximum.reduce([5.9 - poses[:, 0], np.zeros(len(poses)), poses[:, 0] - 6.1])
+    gap_y = np.maximum(poses[:, 1] - 5.5, 0.0)
+    wall_distance = np.hypot(gap_x, gap_y)
+    # the path keeps `radius` (to half a cell); the follower may leave it by corner_tolerance
+    assert wall_distance.min() >= radius - resolution / 2 - follower.config.corner_tolerance
+
+
+def test_speeds_respect_the_limits_and_slow_down_near_the_end():
+    config = FollowerConfig(max_linear=0.8, max_angular=1.2)
+    follower = PathFollower(config)
+    follower.set_path([[0.0, 0.0], [10.0, 0.0]])
+    poses, commands = drive(follower, [0.0, 0.3, 0.4])
+    assert follower.reached
+    assert all(0.0 <= c.linear <= 0.8 and abs(c.angular) <= 1.2 for c in commands)
+    speeds = np.array([c.linear for c in commands[:-1]])
+    assert speeds.max() == pytest.approx(0.8, abs=1e-3)
+    near_end = np.hypot(*(poses[: len(speeds), :2] - [10.0, 0.0]).T) < 0.8
+    assert near_end.any() and speeds[near_end].max() < 0.8
+
+
+def test_progress_is_monotone_and_does_not_jump_onto_a_path_that_doubles_back():
+    hairpin = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.2], [0.0, 1.2]])
+    follower = PathFollower()
+    follower.set_path(hairpin)
+    # next to the return leg (0.2 m) but a metre off the first leg: the progress stays on the
+    # first leg, moving at most one projection window ahead
+    follower.command([2.0, 1.0, 0.0])
+    assert 0.0 < follower.progress <= follower.config.progress_window + 1e-9
+
+    follower.set_path(hairpin)
+    progress = []
+    pose = np.array([0.0, 0.0, 0.0])
+    for _ in range(400):
+        command = follower.command(pose)
+        progress.append(follower.progress)
+        if follower.reached:
+            break
+        pose[0] += command.linear * math.cos(pose[2]) * 0.1
+        pose[1] += command.linear * math.sin(pose[2]) * 0.1
+        pose[2] = wrap_angle(pose[2] + command.angular * 0.1)
+    assert follower.reached
+    assert np.all(np.diff(progress) >= 0.0)
+    assert max(progress) == pytest.approx(polyline_length(hairpin))
+    assert pose[0] < 0.5 and abs(pose[1] - 1.2) < 0.2  # it went round the hairpin
+
+
+def test_a_closed_route_is_driven_all_the_way_round():
+    loop = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 3.0], [0.0, 3.0], [0.0, 0.0]])
+    follower = PathFollower()
+    follower.set_path(loop)
+    assert follower.command([0.0, 0.0, 0.0]).linear > 0.0  # at its own end, but not done
+    poses, _ = drive(follower, [0.0, 0.0, 0.0])
+    assert follower.reached
+    assert polyline_length(poses[:, :2]) >= polyline_length(loop) - 0.5 - 0.2
+    assert np.hypot(*poses[-1, :2]) <= follower.config.goal_tolerance
+
+
+def test_commands_do_not_depend_on_the_frame():
+    frame = np.array([12.0, -5.0, 2.1])
+    pose = np.array([0.7, 0.2, 1.0])
+    here, there = PathFollower(), PathFollower()
+    here.set_path(L_PATH)
+    there.set_path(transform_points(frame, L_PATH))
+    for _ in range(3):  # a few ticks, so progress is compared too
+        a, b = here.command(pose), there.command(compose(frame, pose))
+        assert a.linear == pytest.approx(b.linear) and a.angular == pytest.approx(b.angular)
+        pose = pose + [0.1, 0.0, 0.05]
+
+
+def test_no_path_or_reached_gives_zero_commands():
+    follower = PathFollower()
+    assert follower.command([0.0, 0.0, 0.0]).linear == 0.0 and not follower.reached
+    follower.set_path([[0.2, 0.1]])  # a single point within tolerance
+    assert follower.at_goal([0.0, 0.0, 1.0])
+    assert follower.command([0.0, 0.0, 1.0]) == follower.command([5.0, 5.0, 0.0])
+    assert follower.reached
+    follower.set_path(L_PATH)  # a new path resets
+    assert not follower.reached and follower.progress == 0.0
+    with pytest.raises(ValueError):
+        follower.set_path(np.zeros((3, 3)))

@@ -1,0 +1,279 @@
+"""A* and Theta* on grids, checked against exact answers (closed-form paths, Dijkstra, EDT)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.ndimage import distance_transform_cdt, distance_transform_edt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from navtopo import grid_search as gs
+
+RES = 0.05
+RADIUS = 0.3
+
+
+def centres(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """World x, y of every cell centre of a grid with origin (0, 0) at RES."""
+    rows, cols = np.mgrid[0:height, 0:width]
+    return (cols + 0.5) * RES, (rows + 0.5) * RES
+
+
+# A 8 m x 12 m room split by a 0.2 m thick wall from the bottom edge up to y = 5.5 m, as the
+# scenario code rasterises shapes: a cell is free iff its centre lies outside the wall.
+ROOM_H, ROOM_W = 160, 240
+WALL_X0, WALL_X1, WALL_TOP = 5.9, 6.1, 5.5
+
+
+@pytest.fixture(scope="module")
+def room() -> np.ndarray:
+    x, y = centres(ROOM_H, ROOM_W)
+    return ~((x > WALL_X0) & (x < WALL_X1) & (y < WALL_TOP))
+
+
+def around_wall_end(start_xy: np.ndarray, goal_xy: np.ndarray) -> float:
+    """Exact shortest path from the left of the wall to its right, over its top, for a disc
+    robot of RADIUS: tangent to the circle around the top-left corner, arc, the wall's
+    thickness across the top, arc around the top-right corner, tangent to the goal."""
+    left = np.array([WALL_X0, WALL_TOP])
+    right = np.array([WALL_X1, WALL_TOP])
+    d_start = np.linalg.norm(left - start_xy)
+    d_goal = np.linalg.norm(goal_xy - right)
+    # heading of the tangent leaving the start, and of the one arriving at the goal
+    out_heading = math.atan2(*(left - start_xy)[::-1]) + math.asin(RADIUS / d_start)
+    in_heading = math.atan2(*(goal_xy - right)[::-1]) - math.asin(RADIUS / d_goal)
+    assert out_heading > 0 > in_heading, "the path must turn over the top of the wall"
+    return (
+        math.sqrt(d_start**2 - RADIUS**2)
+        + RADIUS * out_heading
+        + (WALL_X1 - WALL_X0)
+        + RADIUS * -in_heading
+        + math.sqrt(d_goal**2 - RADIUS**2)
+    )
+
+
+def segment_samples(cells: np.ndarray, step: float = 0.2) -> np.ndarray:
+    """Points (in cell units, row/col) every `step` cells along a cell path, ends included."""
+    samples = [cells[:1].astype(float)]
+    for a, b in zip(cells[:-1], cells[1:], strict=True):
+        n = max(int(np.ceil(np.hypot(*(b - a)) / step)), 1)
+        t = np.linspace(0.0, 1.0, n + 1)[1:, None]
+        samples.append(a + t * (b - a))
+    return np.concatenate(samples)
+
+
+# --- coordinates -----------------------------------------------------------------------------
+
+
+def test_cell_centre_convention_round_trips():
+    origin = np.array([-1.0, 3.0])
+    assert np.allclose(gs.cell_to_world((2, 5), origin, 0.1), [-1.0 + 0.55, 3.0 + 0.25])
+    cells = np.array([[0, 0], [2, 5], [7, 1]])
+    world = gs.cell_to_world(cells, origin, 0.1)
+    assert world.shape == (3, 2) and world.dtype == np.float64
+    back = gs.world_to_cell(world, origin, 0.1)
+    assert back.dtype == np.int64 and np.array_equal(back, cells)
+    # a point just inside a cell's lower-left corner belongs to that cell
+    assert np.array_equal(gs.world_to_cell([-1.0 + 1e-9, 3.0 + 1e-9], origin, 0.1), [0, 0])
+    assert np.array_equal(gs.world_to_cell([-1.05, 2.95], origin, 0.1), [-1, -1])
+
+
+def test_path_length_is_euclidean_between_centres():
+    assert gs.path_length(np.array([[0, 0], [3, 4], [3, 10]]), 0.5) == pytest.approx(5.5)
+    assert gs.path_length(np.array([[1, 1]]), 0.5) == 0.0
+    assert gs.path_length(None, 0.5) == 0.0
+
+
+# --- inflation -------------------------------------------------------------------------------
+
+
+def test_inflate_equals_scipy_edt_with_blocked_outside():
+    rng = np.random.default_rng(4)
+    free = rng.random((70, 90)) > 0.03
+    free[30:40, 10:60] = False
+    reference_distance = distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1] * RES
+    for radius in (0.05, 0.1, 0.15, 0.3, 0.35, 0.5):
+        assert np.array_equal(gs.inflate_free(free, radius, RES), reference_distance >= radius)
+    # outside is blocked: with a 3-cell radius an open grid keeps cells 3 or more cells from
+    # the outside row -1, so it loses its two outer rows and columns
+    open_grid = gs.inflate_free(np.ones((20, 20), bool), 0.15, RES)
+    assert open_grid[2:-2, 2:-2].all() and not open_grid[:2].any() and not open_grid[:, -2:].any()
+
+
+# --- line of sight ---------------------------------------------------------------------------
+
+
+def test_line_of_sight_refuses_a_segment_grazing_a_wall_corner():
+    free = np.ones((10, 10), bool)
+    assert gs.line_of_sight(free, (3, 4), (5, 6))  # diagonal through the corner at (5, 6)
+    for blocked in [(4, 6), (5, 5)]:  # either cell beside that corner
+        grid = free.copy()
+        grid[blocked] = False
+        assert not gs.line_of_sight(grid, (3, 4), (5, 6))
+        assert not gs.line_of_sight(grid, (5, 6), (3, 4))
+    # slope 1/3 from (0, 0) to (2, 6) passes exactly through the grid corner (1, 2)
+    grid = free.copy()
+    grid[1, 1] = False
+    assert not gs.line_of_sight(grid, (0, 0), (2, 6))
+    grid = free.copy()
+    grid[0, 3] = False  # beside the segment, not touched by it
+    grid[2, 3] = False
+    assert gs.line_of_sight(grid, (0, 0), (2, 6))
+    assert not gs.line_of_sight(free, (0, 0), (10, 3))  # end outside the grid
+
+
+def test_line_of_sight_with_clearance_leaps_agrees_with_the_cell_walk():
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        height, width = rng.integers(5, 60, 2)
+        free = np.ones((height, width), bool)
+        for _ in range(rng.integers(0, 6)):
+            r, c = rng.integers(0, height), rng.integers(0, width)
+            free[r : r + rng.integers(1, 8), c : c + rng.integers(1, 8)] = False
+        clear = gs._chebyshev_clearance(free)
+        chessboard = distance_transform_cdt(np.pad(free, 1), metric="chessboard")[1:-1, 1:-1]
+        assert np.array_equal(clear, np.minimum(chessboard, 255))
+        for _ in range(100):
+            a = rng.integers(0, (height, width))
+            b = rng.integers(0, (height, width))
+            walk = gs._line_of_sight(free, a[0], a[1], b[0], b[1])
+            assert walk == gs._clear_line_of_sight(clear, a[0], a[1], b[0], b[1])
+    # open ground wider than the saturated clearance (255)
+    free = np.ones((800, 800), bool)
+    free[100:110, 100:700] = False
+    clear = gs._chebyshev_clearance(free)
+    assert clear.max() == 255
+    for _ in range(300):
+        a, b = rng.integers(0, 800, 2), rng.integers(0, 800, 2)
+        walk = gs._line_of_sight(free, a[0], a[1], b[0], b[1])
+        assert walk == gs._clear_line_of_sight(clear, a[0], a[1], b[0], b[1])
+
+
+# --- planners --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "start, goal",
+    [
+        ((20, 30), (30, 210)),  # far from the wall on both sides: a shallow bend
+        ((40, 60), (40, 180)),
+        ((60, 100), (15, 140)),  # close to the wall: the path wraps ~180 degrees around its top
+        ((10, 105), (10, 135)),
+    ],
+)
+def test_theta_star_matches_the_exact_shortest_path_around_a_wall(room, start, goal):
+    free = gs.inflate_free(room, RADIUS, RES)
+    path = gs.theta_star(free, start, goal)
+    assert path is not None and path.dtype == np.int64 and path.shape[1] == 2
+    assert tuple(path[0]) == start and tuple(path[-1]) == goal
+    start_xy, goal_xy = gs.cell_to_world(np.array([start, goal]), (0.0, 0.0), RES)
+    exact = around_wall_end(start_xy, goal_xy)
+    assert gs.path_length(path, RES) == pytest.approx(exact, rel=0.01)
+    assert all(gs.line_of_sight(free, a, b) for a, b in zip(path[:-1], path[1:], strict=True))
+
+
+def test_theta_star_in_the_open_is_one_straight_segment():
+    free = np.ones((40, 50), bool)
+    path = gs.theta_star(free, (3, 2), (37, 45))
+    assert path.tolist() == [[3, 2], [37, 45]]
+
+
+def test_astar_is_8_connected_optimal_and_not_shorter_than_theta_star(room):
+    free = gs.inflate_free(room, RADIUS, RES)[::2, ::2]  # 80 x 120: small enough for Dijkstra
+    start, goal = (10, 20), (12, 100)
+    path = gs.astar(free, start, goal)
+    assert path is not None and tuple(path[0]) == start and tuple(path[-1]) == goal
+    steps = np.diff(path, axis=0)
+    assert (np.abs(steps).max(axis=1) == 1).all()  # every step to an 8-neighbour
+    assert free[path[:, 0], path[:, 1]].all()
+    diagonal = (steps != 0).all(axis=1)
+    corners_a = free[path[:-1][diagonal, 0] + steps[diagonal, 0], path[:-1][diagonal, 1]]
+    corners_b = free[path[:-1][diagonal, 0], path[:-1][diagonal, 1] + steps[diagonal, 1]]
+    assert corners_a.all() and corners_b.all()  # no diagonal step cuts a corner
+
+    # exact 8-connected shortest path length by Dijkstra over the same moves
+    height, width = free.shape
+    index = np.arange(free.size).reshape(free.shape)
+    rows, cols, weights = [], [], []
+    for dr, dc in [(0, 1), (1, 0), (1, 1), (1, -1)]:
+        r0, r1 = max(0, -dr), height - max(0, dr)
+        c0, c1 = max(0, -dc), width - max(0, dc)
+        a = (slice(r0, r1), slice(c0, c1))
+        b = (slice(r0 + dr, r1 + dr), slice(c0 + dc, c1 + dc))
+        ok = free[a] & free[b]
+        if dr and dc:
+            ok &= free[r0 + dr : r1 + dr, c0:c1] & free[r0:r1, c0 + dc : c1 + dc]
+        rows.append(index[a][ok])
+        cols.append(index[b][ok])
+        weights.append(np.full(ok.sum(), math.hypot(dr, dc)))
+    graph = coo_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(free.size, free.size),
+    )
+    best = dijkstra(graph, directed=False, indices=index[start])[index[goal]]
+    assert gs.path_length(path, 1.0) == pytest.approx(best, abs=1e-9)
+    any_angle = gs.path_length(gs.theta_star(free, start, goal), 1.0)
+    assert any_angle <= gs.path_length(path, 1.0) <= any_angle * 1.0824  # octile bound
+
+
+def test_theta_star_keeps_the_radius_from_every_wall():
+    rng = np.random.default_rng(11)
+    x, y = centres(120, 120)
+    room = np.ones((120, 120), bool)
+    for _ in range(25):  # random discs and boxes
+        cx, cy, size = rng.uniform(0.0, 6.0), rng.uniform(0.0, 6.0), rng.uniform(0.1, 0.5)
+        if rng.random() < 0.5:
+            room &= np.hypot(x - cx, y - cy) > size
+        else:
+            room &= (np.abs(x - cx) > size) | (np.abs(y - cy) > size / 2)
+    free = gs.inflate_free(room, RADIUS, RES)
+    clearance = distance_transform_edt(np.pad(room, 1))[1:-1, 1:-1] * RES
+    walls = cKDTree(np.argwhere(np.pad(~room, 1, constant_values=True)) - 1)  # incl. outside
+    planned = 0
+    for _ in range(6):
+        start = gs.nearest_free(free, rng.integers(0, 120, 2), 120)
+        goal = gs.nearest_free(free, rng.integers(0, 120, 2), 120)
+        path = gs.theta_star(free, start, goal)
+        if path is None:
+            continue
+        planned += 1
+        samples = segment_samples(path)
+        cells = np.floor(samples + 0.5).astype(int)  # the cell each sample lies in
+        assert (clearance[cells[:, 0], cells[:, 1]] >= RADIUS - 1e-9).all()
+        # continuous check: a sample is within half a cell diagonal of a cell centre that
+        # is at least RADIUS from every wall cell centre
+        gaps, _ = walls.query(samples)
+        assert gaps.min() * RES >= RADIUS - RES / math.sqrt(2.0) - 1e-9
+    assert planned >= 3
+
+
+def test_planners_return_none_when_the_goal_cannot_be_reached():
+    free = np.ones((30, 30), bool)
+    free[:, 15] = False  # a wall across the whole grid
+    for plan in (gs.astar, gs.theta_star):
+        assert plan(free, (5, 5), (5, 25)) is None
+        assert plan(free, (5, 15), (5, 5)) is None  # start in the wall
+        assert plan(free, (5, 5), (-1, 5)) is None  # goal outside the grid
+        assert plan(free, (5, 5), (5, 40)) is None
+        assert plan(free, (5, 5), (5, 5)).tolist() == [[5, 5]]
+    # a diagonal gap between two blocked cells is not a way through
+    free = np.ones((10, 10), bool)
+    free[:5, 5] = False
+    free[5:, 4] = False
+    free[4, 4] = True
+    assert gs.astar(free, (0, 0), (0, 9)) is None
+    assert gs.theta_star(free, (9, 0), (0, 9)) is None
+
+
+def test_nearest_free_moves_a_cell_out_of_the_inflated_zone():
+    free = np.zeros((20, 20), bool)
+    free[10:, 12:] = True
+    assert gs.nearest_free(free, (15, 15), 3) == (15, 15)
+    assert gs.nearest_free(free, (5, 15), 10) == (10, 15)
+    assert gs.nearest_free(free, (8, 9), 10) == (10, 12)  # the corner, sqrt(13) away
+    assert gs.nearest_free(free, (5, 15), 4) is None
+    assert gs.nearest_free(free, (25, 25), 10) == (19, 19)  # outside the grid
