@@ -1,0 +1,609 @@
+"""Registration of two location grids in 2D, and a verdict on whether they show one place.
+
+NavTopo (Muravyev & Yakovlev, Sec. "Graph Maintaining" and "Localization") decides whether the
+robot is still inside a location, moves along edges and verifies place-recognition candidates by
+matching 2D projections of scans with features; PRISM-TopoMap does it with ORB on occupancy
+images and an iterative outlier rejection. This file does the same job in four steps:
+
+1. features: ORB keypoints and descriptors on an image of the occupied cells (walls dilated and
+   blurred, so that corners and wall ends give stable, oriented keypoints);
+2. robust matching: Hamming nearest neighbours with Lowe's ratio test, or, with an odometry
+   guess, every neighbour consistent with the guess (which also lifts repeated structure);
+   2-point RANSAC for a rigid 2D transform (rotation and translation, no scale), then a
+   least-squares refit on the inliers;
+3. refinement: point-to-point ICP (Besl & McKay 1992) on occupied-cell centres with shrinking
+   correspondence distances (nearest neighbours come from a distance transform's label map, so an
+   iteration costs a lookup instead of a k-d tree query), then Gauss-Newton on the reference's
+   bilinearly interpolated distance field (a likelihood-field fit, as in Cartographer's scan
+   matcher), which acts point-to-line and removes ICP's sliding along rows of wall cells;
+4. verdict: wall agreement (occupied cells of each grid that lie near occupied cells of the other,
+   against those that fall in the other's free space) times the known-area IoU.
+
+Direction convention (as ``navtopo.geometry``): ``match(reference, query)`` returns the pose of
+the query's observation point in the reference grid's frame. If the reference was observed at
+pose A and the query at pose B (any common frame), the ideal result is ``between(A, B)``, and
+``transform_points(result.pose, p)`` maps a point p of the query frame into the reference frame.
+An ``initial_guess`` follows the same convention (e.g. ``between(odom_A, odom_B)``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import cached_property
+
+import cv2
+import numpy as np
+from numba import njit
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from navtopo.geometry import inverse, transform_points, wrap_angle
+from navtopo.local_grid import (
+    OCCUPIED,
+    UNKNOWN,
+    Grid,
+    GridConfig,
+    cell_to_xy,
+)
+
+
+class MatchingConfig(BaseModel):
+    """Parameters of ``match``; distances in metres, angles in radians."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # features
+    n_features: int = Field(default=400, gt=0, description="ORB keypoints per grid at most")
+    # a wide patch (4.5 m) and two scales: wall layouts are distinctive over metres, not cells
+    orb_patch_size: int = Field(default=45, ge=5, description="ORB patch side, cells")
+    orb_levels: int = Field(default=2, ge=1, description="ORB pyramid levels")
+    orb_scale: float = Field(default=1.4, gt=1.0, description="ORB pyramid scale step")
+    orb_fast_threshold: int = Field(default=5, ge=1, description="FAST corner threshold")
+    ratio_test: float = Field(default=0.95, gt=0.0, le=1.0, description="Lowe's ratio without a guess")
+    # RANSAC
+    ransac_iterations: int = Field(default=1000, gt=0)
+    ransac_threshold: float = Field(default=0.3, gt=0.0, description="inlier keypoint distance, m")
+    min_inliers: int = Field(default=5, ge=2, description="fewer RANSAC inliers: no feature hypothesis")
+    ransac_hypotheses: int = Field(
+        default=3,
+        ge=1,
+        description="hypotheses refined and scored (sequential RANSAC on the outliers)",
+    )
+    seed: int = 0
+    # odometry guess
+    guess_translation_tolerance: float = Field(
+        default=2.0,
+        gt=0.0,
+        description="keypoint matches farther than this from the guess are dropped",
+    )
+    guess_rotation_tolerance: float = Field(
+        default=0.5, gt=0.0, description="RANSAC hypotheses turned farther than this from the guess"
+    )
+    guess_first_score: float = Field(
+        default=0.6,
+        ge=0.0,
+        le=1.0,
+        description="a refined guess scoring at least this is taken without feature matching",
+    )
+    # ICP refinement
+    icp_distances: tuple[float, ...] = Field(default=(1.0, 0.5, 0.25, 0.15), description="correspondence distance per stage, m")
+    icp_iterations: int = Field(default=8, gt=0, description="iterations per stage at most")
+    field_iterations: int = Field(default=10, ge=0, description="Gauss-Newton steps on the distance field after ICP (0: none)")
+    field_cutoff: float = Field(default=0.2, gt=0.0, description="farther cells are left out, m")
+    # verdict
+    wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
+    # calibrated on corridor_150m scans (300 poses, seed 0; benchmarks/bench_scan_matching.py):
+    # 0.88 accepted 93 % of the near pairs (<= 5 m, overlap >= 0.3) with the right pose, 0 of
+    # 3000 far pairs (>= 15 m) and 6 of 3575 near pairs with a wrong pose (180° turns of
+    # symmetric corridor stretches, without a guess); 0.87 let 4 far pairs through
+    min_wall_agreement: float = Field(default=0.88, ge=0.0, le=1.0)
+    min_overlap: float = Field(default=0.2, ge=0.0, le=1.0, description="known-area IoU")
+    min_matched_walls: int = Field(default=60, ge=0, description="agreeing occupied cells, both ways")
+    min_score: float = Field(default=0.2, ge=0.0, le=1.0, description="wall agreement x overlap")
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """What ``match`` found.
+
+    pose: (3,) the query's observation point in the reference frame (``between(A, B)`` ideally).
+    score: wall_agreement * overlap, in [0, 1]. accepted: the verdict of ``MatchingConfig``.
+    inliers: RANSAC inlier keypoint matches of the feature hypothesis (0 if it was not used).
+    wall_agreement: agreeing / (agreeing + contradicting) occupied cells, both ways.
+    overlap: known-area IoU at ``pose``. matched_walls: agreeing occupied cells, both ways.
+    source: "guess", "features" or "none" (nothing to match). elapsed_ms: wall clock.
+    """
+
+    pose: NDArray[np.float64]
+    score: float
+    accepted: bool
+    inliers: int
+    wall_agreement: float
+    overlap: float
+    matched_walls: int
+    source: str
+    elapsed_ms: float
+
+
+class PreparedGrid:
+    """A grid with what matching needs of it, computed once: prepare the current grid once to
+    match it against several locations (a few ms saved per match). Features are computed on
+    first use only, with the ``MatchingConfig`` given here (``match`` uses it as it is)."""
+
+    def __init__(
+        self,
+        grid: Grid,
+        grid_config: GridConfig | None = None,
+        config: MatchingConfig | None = None,
+    ):
+        self.grid = grid
+        self.config = config or MatchingConfig()
+        self.grid_config = grid_config or GridConfig()
+        self.resolution = self.grid_config.resolution
+        self.half = grid.shape[0] // 2
+        # everything below works on the bounding box of the known cells plus a margin: walls lie
+        # inside it, and a point outside is unknown and far from every wall
+        known = grid != UNKNOWN
+        known_rows = np.flatnonzero(known.any(axis=1))
+        known_cols = np.flatnonzero(known.any(axis=0))
+        pad = int(np.ceil(max(self.config.icp_distances, default=0.0) / self.resolution)) + 2
+        if known_rows.size:
+            self.row0 = max(int(known_rows[0]) - pad, 0)
+            self.col0 = max(int(known_cols[0]) - pad, 0)
+            row1 = min(int(known_rows[-1]) + pad + 1, grid.shape[0])
+            col1 = min(int(known_cols[-1]) + pad + 1, grid.shape[1])
+        else:
+            self.row0 = self.col0 = row1 = col1 = 0
+        self.crop = np.ascontiguousarray(grid[self.row0 : row1, self.col0 : col1])
+        self.walls = (self.crop == OCCUPIED).astype(np.uint8)
+        rows, cols = np.nonzero(self.walls)
+        rows, cols = rows + self.row0, cols + self.col0
+        self.occupied_cells = np.stack([rows, cols], axis=1)
+        self.occupied_xy = cell_to_xy(self.occupied_cells, self.grid_config)
+        self.known_count = int(np.count_nonzero(self.crop))
+        if len(self.occupied_xy):
+            distance, labels = cv2.distanceTransformWithLabels(
+                1 - self.walls, cv2.DIST_L2, cv2.DIST_MASK_5, labelType=cv2.DIST_LABEL_PIXEL
+            )
+            # map each label (one per wall cell) to the index of that cell in occupied_xy
+            lut = np.full(int(labels.max()) + 1, -1, dtype=np.int32)
+            lut[labels[rows - self.row0, cols - self.col0]] = np.arange(len(rows), dtype=np.int32)
+            self.nearest = lut[labels]
+            self.distance = distance * np.float32(self.resolution)
+        else:
+            self.nearest = np.full(self.crop.shape, -1, dtype=np.int32)
+            self.distance = np.full(self.crop.shape, np.inf, dtype=np.float32)
+
+    @cached_property
+    def features(self) -> tuple[NDArray, NDArray | None]:
+        """ORB keypoints as metric points (K, 2) of this grid's frame, and descriptors (K, 32)."""
+        if len(self.occupied_xy) == 0:
+            return np.zeros((0, 2)), None
+        image = cv2.dilate(self.walls * 255, np.ones((3, 3), np.uint8))
+        image = cv2.GaussianBlur(image, (0, 0), 1.0)
+        c = self.config
+        orb = cv2.ORB.create(
+            nfeatures=c.n_features,
+            scaleFactor=c.orb_scale,
+            nlevels=c.orb_levels,
+            edgeThreshold=c.orb_patch_size,
+            patchSize=c.orb_patch_size,
+            fastThreshold=c.orb_fast_threshold,
+        )
+        # pad, so that keypoints near the crop's edge keep a whole patch
+        border = c.orb_patch_size + 1
+        image = cv2.copyMakeBorder(image, border, border, border, border, cv2.BORDER_CONSTANT, value=0)
+        keypoints, descriptors = orb.detectAndCompute(image, None)
+        if descriptors is None:
+            return np.zeros((0, 2)), None
+        pixels = np.array([kp.pt for kp in keypoints], dtype=np.float64) - border
+        xy = np.stack(
+            [
+                (pixels[:, 0] + self.col0 - self.half + 0.5) * self.resolution,
+                (pixels[:, 1] + self.row0 - self.half + 0.5) * self.resolution,
+            ],
+            axis=1,
+        )
+        return xy, descriptors
+
+
+def prepare(
+    grid: Grid | PreparedGrid,
+    grid_config: GridConfig | None = None,
+    config: MatchingConfig | None = None,
+) -> PreparedGrid:
+    """A ``PreparedGrid`` of a grid (returned as is if it already is one)."""
+    if isinstance(grid, PreparedGrid):
+        return grid
+    return PreparedGrid(grid, grid_config, config)
+
+
+def _rigid_fit(src: NDArray, dst: NDArray) -> NDArray[np.float64]:
+    """Least-squares rigid transform (pose) with dst ~ R src + t, for (N, 2) pairs."""
+    mean_s, mean_d = src.mean(axis=0), dst.mean(axis=0)
+    s, d = src - mean_s, dst - mean_d
+    theta = np.arctan2(np.sum(s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0]), np.sum(s * d))
+    c, si = np.cos(theta), np.sin(theta)
+    t = mean_d - np.array([c * mean_s[0] - si * mean_s[1], si * mean_s[0] + c * mean_s[1]])
+    return np.array([t[0], t[1], theta])
+
+
+@njit(cache=True, nogil=True)
+def _ransac(src, dst, iterations, threshold, seed, guess_yaw, yaw_tolerance):  # pragma: no cover
+    """2-point RANSAC for dst ~ R src + t. Returns (x, y, yaw, inlier count)."""
+    np.random.seed(seed)
+    n = src.shape[0]
+    best = np.zeros(3)
+    best_count = 0
+    threshold2 = threshold * threshold
+    for _ in range(iterations):
+        i = np.random.randint(n)
+        j = np.random.randint(n)
+        vs_x, vs_y = src[j, 0] - src[i, 0], src[j, 1] - src[i, 1]
+        vd_x, vd_y = dst[j, 0] - dst[i, 0], dst[j, 1] - dst[i, 1]
+        length_s = np.sqrt(vs_x * vs_x + vs_y * vs_y)
+        length_d = np.sqrt(vd_x * vd_x + vd_y * vd_y)
+        # a rigid motion keeps lengths; a short baseline gives a poor angle
+        if length_s < 0.8 or abs(length_s - length_d) > threshold:
+            continue
+        theta = np.arctan2(vd_y, vd_x) - np.arctan2(vs_y, vs_x)
+        deviation = (theta - guess_yaw + np.pi) % (2.0 * np.pi) - np.pi
+        if abs(deviation) > yaw_tolerance:
+            continue
+        c, s = np.cos(theta), np.sin(theta)
+        mx, my = 0.5 * (src[i, 0] + src[j, 0]), 0.5 * (src[i, 1] + src[j, 1])
+        tx = 0.5 * (dst[i, 0] + dst[j, 0]) - (c * mx - s * my)
+        ty = 0.5 * (dst[i, 1] + dst[j, 1]) - (s * mx + c * my)
+        count = 0
+        for k in range(n):
+            ex = c * src[k, 0] - s * src[k, 1] + tx - dst[k, 0]
+            ey = s * src[k, 0] + c * src[k, 1] + ty - dst[k, 1]
+            if ex * ex + ey * ey < threshold2:
+                count += 1
+        if count > best_count:
+            best_count = count
+            best[0], best[1], best[2] = tx, ty, theta
+    return best[0], best[1], best[2], best_count
+
+
+def _feature_hypothesis(
+    reference: PreparedGrid, query: PreparedGrid, guess: NDArray | None, config: MatchingConfig
+) -> list[tuple[NDArray, int]]:
+    """Poses of the query in the reference from ORB matches and RANSAC, best first, each with
+    its inlier count."""
+    ref_xy, ref_desc = reference.features
+    query_xy, query_desc = query.features
+    if ref_desc is None or query_desc is None or len(ref_xy) < 2 or len(query_xy) < 2:
+        return []
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    if guess is None:
+        pairs = [
+            m[0]
+            for m in matcher.knnMatch(query_desc, ref_desc, k=2)
+            if len(m) == 2 and m[0].distance < config.ratio_test * m[1].distance
+        ]
+        q_idx = np.array([m.queryIdx for m in pairs], dtype=np.int64)
+        r_idx = np.array([m.trainIdx for m in pairs], dtype=np.int64)
+    else:
+        # every descriptor neighbour near where the guess puts the keypoint
+        knn = matcher.knnMatch(query_desc, ref_desc, k=min(8, len(ref_xy)))
+        q_idx = np.array([m.queryIdx for ms in knn for m in ms], dtype=np.int64)
+        r_idx = np.array([m.trainIdx for ms in knn for m in ms], dtype=np.int64)
+        if len(q_idx):
+            predicted = transform_points(guess, query_xy[q_idx])
+            near = np.hypot(*(predicted - ref_xy[r_idx]).T) < config.guess_translation_tolerance
+            q_idx, r_idx = q_idx[near], r_idx[near]
+    src, dst = query_xy[q_idx], ref_xy[r_idx]
+    yaw = 0.0 if guess is None else float(guess[2])
+    tolerance = np.inf if guess is None else config.guess_rotation_tolerance
+    hypotheses: list[tuple[NDArray, int]] = []
+    # sequential RANSAC: the best rigid fit, then the best among the matches it left out, ...
+    while len(hypotheses) < config.ransac_hypotheses and len(src) >= config.min_inliers:
+        x, y, theta, count = _ransac(src, dst, config.ransac_iterations, config.ransac_threshold, config.seed, yaw, tolerance)
+        if count < config.min_inliers:
+            break
+        residual = np.hypot(*(transform_points(np.array([x, y, theta]), src) - dst).T)
+        inliers = residual < config.ransac_threshold
+        pose = _rigid_fit(src[inliers], dst[inliers])
+        pose[2] = wrap_angle(pose[2])
+        hypotheses.append((pose, int(np.count_nonzero(inliers))))
+        src, dst = src[~inliers], dst[~inliers]
+    return hypotheses
+
+
+@njit(cache=True, nogil=True)
+def _cell_in_crop(x, y, row0, col0, half, resolution, height, width):  # pragma: no cover
+    """Crop indices (row, col) of a metric point, or (-1, -1) off the crop."""
+    col = int(np.floor(x / resolution)) + half - col0
+    row = int(np.floor(y / resolution)) + half - row0
+    if row < 0 or col < 0 or row >= height or col >= width:
+        return -1, -1
+    return row, col
+
+
+@njit(cache=True, nogil=True)
+def _icp(points, pose, target_xy, nearest, row0, col0, half, resolution, distances, iterations):
+    """Point-to-point ICP: the pose (x, y, yaw) that puts ``points`` onto ``target_xy``.
+
+    Each point's partner is the occupied cell nearest to the cell it falls in (``nearest``, a
+    crop-sized label map), kept if within the stage's distance; the closed-form 2D fit of the
+    pairs updates the pose. Stages shrink the distance so far outliers stop pulling.
+    """
+    height, width = nearest.shape
+    x, y, yaw = pose[0], pose[1], pose[2]
+    n = points.shape[0]
+    src = np.empty((n, 2))
+    dst = np.empty((n, 2))
+    for max_distance in distances:
+        limit = (max_distance + resolution) ** 2
+        for _ in range(iterations):
+            c, s = np.cos(yaw), np.sin(yaw)
+            m = 0
+            for k in range(n):
+                px = c * points[k, 0] - s * points[k, 1] + x
+                py = s * points[k, 0] + c * points[k, 1] + y
+                row, col = _cell_in_crop(px, py, row0, col0, half, resolution, height, width)
+                if row < 0:
+                    continue
+                j = nearest[row, col]
+                if j < 0:
+                    continue
+                dx, dy = target_xy[j, 0] - px, target_xy[j, 1] - py
+                if dx * dx + dy * dy > limit:
+                    continue
+                src[m, 0], src[m, 1] = px, py
+                dst[m, 0], dst[m, 1] = target_xy[j, 0], target_xy[j, 1]
+                m += 1
+            if m < 3:
+                return np.array([x, y, yaw])
+            ms_x, ms_y = src[:m, 0].mean(), src[:m, 1].mean()
+            md_x, md_y = dst[:m, 0].mean(), dst[:m, 1].mean()
+            cross = 0.0
+            dot = 0.0
+            for k in range(m):
+                ax, ay = src[k, 0] - ms_x, src[k, 1] - ms_y
+                bx, by = dst[k, 0] - md_x, dst[k, 1] - md_y
+                cross += ax * by - ay * bx
+                dot += ax * bx + ay * by
+            d_yaw = np.arctan2(cross, dot)
+            dc, ds = np.cos(d_yaw), np.sin(d_yaw)
+            d_x = md_x - (dc * ms_x - ds * ms_y)
+            d_y = md_y - (ds * ms_x + dc * ms_y)
+            x, y = dc * x - ds * y + d_x, ds * x + dc * y + d_y
+            yaw = yaw + d_yaw
+            if d_x * d_x + d_y * d_y < 1e-8 and abs(d_yaw) < 1e-5:
+                break
+    return np.array([x, y, yaw])
+
+
+@njit(cache=True, nogil=True)
+def _wall_counts(points, pose, crop, distance, row0, col0, half, resolution, tolerance):
+    """(agree, conflict): points (occupied cells of one grid) moved by ``pose`` into the other
+    grid that lie within ``tolerance`` of its occupied cells, and those that fall into its free
+    space farther than that."""
+    height, width = crop.shape
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    agree = 0
+    conflict = 0
+    for k in range(points.shape[0]):
+        px = c * points[k, 0] - s * points[k, 1] + pose[0]
+        py = s * points[k, 0] + c * points[k, 1] + pose[1]
+        row, col = _cell_in_crop(px, py, row0, col0, half, resolution, height, width)
+        if row < 0:
+            continue
+        if distance[row, col] <= tolerance:
+            agree += 1
+        elif crop[row, col] == 1:  # FREE
+            conflict += 1
+    return agree, conflict
+
+
+@njit(cache=True, nogil=True)
+def _known_intersection(crop_a, row0_a, col0_a, crop_b, row0_b, col0_b, pose_ab, half, res):
+    """Known cells of grid a whose centres, moved into grid b's frame by ``pose_ab`` (the pose of
+    a's frame in b's), fall on known cells of b."""
+    height_b, width_b = crop_b.shape
+    c, s = np.cos(pose_ab[2]), np.sin(pose_ab[2])
+    count = 0
+    for r in range(crop_a.shape[0]):
+        ya = (r + row0_a - half + 0.5) * res
+        for q in range(crop_a.shape[1]):
+            if crop_a[r, q] == 0:  # UNKNOWN
+                continue
+            xa = (q + col0_a - half + 0.5) * res
+            px = c * xa - s * ya + pose_ab[0]
+            py = s * xa + c * ya + pose_ab[1]
+            row, col = _cell_in_crop(px, py, row0_b, col0_b, half, res, height_b, width_b)
+            if row >= 0 and crop_b[row, col] != 0:
+                count += 1
+    return count
+
+
+@njit(cache=True, nogil=True)
+def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterations):
+    """Gauss-Newton on the distance field of the target's occupied cells: the pose minimising
+    the squared, bilinearly interpolated distances of ``points`` (those within ``cutoff``).
+
+    Along a row of wall cells the interpolated distance is the offset across the row, so this
+    is point-to-line matching: no sliding bias from the cell spacing, unlike point-to-point.
+    """
+    height, width = field.shape
+    x, y, yaw = pose[0], pose[1], pose[2]
+    for _ in range(iterations):
+        c, s = np.cos(yaw), np.sin(yaw)
+        h = np.zeros((3, 3))
+        g = np.zeros(3)
+        jac = np.empty(3)
+        used = 0
+        for k in range(points.shape[0]):
+            qx, qy = points[k, 0], points[k, 1]
+            px = c * qx - s * qy + x
+            py = s * qx + c * qy + y
+            # continuous crop coordinates with cell centres at integers
+            u = px / resolution + half - col0 - 0.5
+            v = py / resolution + half - row0 - 0.5
+            j0 = int(np.floor(u))
+            i0 = int(np.floor(v))
+            if i0 < 0 or j0 < 0 or i0 + 1 >= height or j0 + 1 >= width:
+                continue
+            fu, fv = u - j0, v - i0
+            f00, f01 = field[i0, j0], field[i0, j0 + 1]
+            f10, f11 = field[i0 + 1, j0], field[i0 + 1, j0 + 1]
+            d = (1 - fv) * ((1 - fu) * f00 + fu * f01) + fv * ((1 - fu) * f10 + fu * f11)
+            if d > cutoff:
+                continue
+            gx = ((1 - fv) * (f01 - f00) + fv * (f11 - f10)) / resolution
+            gy = ((1 - fu) * (f10 - f00) + fu * (f11 - f01)) / resolution
+            jac[0], jac[1] = gx, gy
+            jac[2] = gx * (-s * qx - c * qy) + gy * (c * qx - s * qy)
+            for a in range(3):
+                g[a] += jac[a] * d
+                for b in range(3):
+                    h[a, b] += jac[a] * jac[b]
+            used += 1
+        if used < 3:
+            break
+        for a in range(3):
+            h[a, a] += 1e-6 + 1e-3 * h[a, a]  # Levenberg damping
+        step = np.linalg.solve(h, -g)
+        x += step[0]
+        y += step[1]
+        yaw += step[2]
+        if step[0] * step[0] + step[1] * step[1] < 1e-8 and abs(step[2]) < 1e-5:
+            break
+    return np.array([x, y, yaw])
+
+
+def refine(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
+    """The query's pose in the reference, refined from ``pose``: ICP of the query's occupied
+    cells onto the reference's, then the distance-field fit (see the module docstring)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    if len(query.occupied_xy) < 3 or len(reference.occupied_xy) < 3:
+        return pose.copy()
+    refined = _icp(
+        query.occupied_xy,
+        pose,
+        reference.occupied_xy,
+        reference.nearest,
+        reference.row0,
+        reference.col0,
+        reference.half,
+        reference.resolution,
+        np.asarray(config.icp_distances, dtype=np.float64),
+        config.icp_iterations,
+    )
+    if config.field_iterations:
+        refined = _field_fit(
+            query.occupied_xy,
+            refined,
+            reference.distance,
+            reference.row0,
+            reference.col0,
+            reference.half,
+            reference.resolution,
+            config.field_cutoff,
+            config.field_iterations,
+        )
+    refined[2] = wrap_angle(refined[2])
+    return refined
+
+
+def verdict(
+    reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig
+) -> tuple[float, float, float, int]:
+    """(score, wall agreement, overlap, matched walls) of the query placed at ``pose``.
+
+    Wall agreement counts, both ways, occupied cells of one grid within ``wall_tolerance`` of an
+    occupied cell of the other (agree) or in its free space (contradict); cells landing in the
+    other's unknown space count for neither. Overlap is the known-area IoU (as
+    ``local_grid.overlap``, by sampling cell centres). Score = agreement x overlap.
+    """
+    pose = np.asarray(pose, dtype=np.float64)
+    agree = conflict = 0
+    for source, target, frame in ((query, reference, pose), (reference, query, inverse(pose))):
+        a, c = _wall_counts(
+            source.occupied_xy,
+            frame,
+            target.crop,
+            target.distance,
+            target.row0,
+            target.col0,
+            target.half,
+            target.resolution,
+            config.wall_tolerance,
+        )
+        agree += a
+        conflict += c
+    wall_agreement = agree / (agree + conflict) if agree + conflict else 0.0
+    both = _known_intersection(
+        query.crop,
+        query.row0,
+        query.col0,
+        reference.crop,
+        reference.row0,
+        reference.col0,
+        pose,
+        reference.half,
+        reference.resolution,
+    )
+    union = reference.known_count + query.known_count - both
+    iou = both / union if union > 0 else 0.0
+    return wall_agreement * iou, wall_agreement, iou, agree
+
+
+def match(
+    reference: Grid | PreparedGrid,
+    query: Grid | PreparedGrid,
+    initial_guess: ArrayLike | None = None,
+    config: MatchingConfig | None = None,
+    grid_config: GridConfig | None = None,
+) -> MatchResult:
+    """Register ``query`` to ``reference``: the pose of the query's observation point in the
+    reference frame (``between(A, B)`` for grids observed at poses A and B), with a verdict.
+
+    initial_guess: (3,) the same pose from odometry, if known: it is refined first and, if that
+    scores ``guess_first_score``, taken without feature matching; otherwise it gates the feature
+    matches and RANSAC hypotheses. Without it, features and RANSAC search all poses.
+    """
+    start = time.perf_counter()
+    config = config or MatchingConfig()
+    reference = prepare(reference, grid_config, config)
+    query = prepare(query, grid_config, config)
+    guess = None if initial_guess is None else np.asarray(initial_guess, dtype=np.float64)
+
+    def passes(scored) -> bool:
+        score, agreement, iou, matched = scored
+        return bool(
+            score >= config.min_score
+            and agreement >= config.min_wall_agreement
+            and iou >= config.min_overlap
+            and matched >= config.min_matched_walls
+        )
+
+    def result(pose, scored, inliers, source) -> MatchResult:
+        accepted = source != "none" and passes(scored)
+        elapsed = (time.perf_counter() - start) * 1e3
+        pose = np.array([pose[0], pose[1], wrap_angle(pose[2])], dtype=np.float64)
+        score, agreement, iou, matched = scored
+        return MatchResult(pose, score, accepted, inliers, agreement, iou, matched, source, elapsed)
+
+    if len(reference.occupied_xy) < 3 or len(query.occupied_xy) < 3:
+        return result(guess if guess is not None else np.zeros(3), (0.0, 0.0, 0.0, 0), 0, "none")
+
+    candidates = []  # (scored, pose, inliers, source)
+    if guess is not None:
+        pose = refine(reference, query, guess, config)
+        scored = verdict(reference, query, pose, config)
+        if scored[0] >= config.guess_first_score and passes(scored):
+            return result(pose, scored, 0, "guess")
+        candidates.append((scored, pose, 0, "guess"))
+    for feature_pose, inliers in _feature_hypothesis(reference, query, guess, config):
+        pose = refine(reference, query, feature_pose, config)
+        candidates.append((verdict(reference, query, pose, config), pose, inliers, "features"))
+    if not candidates:
+        return result(np.zeros(3), (0.0, 0.0, 0.0, 0), 0, "none")
+    # rank by agreement x sqrt(overlap): wall agreement tells right from wrong better than a
+    # larger overlap does (a corridor turned by 180° can overlap more, yet agree less)
+    scored, pose, inliers, source = max(candidates, key=lambda c: c[0][1] * np.sqrt(c[0][2]))
+    return result(pose, scored, inliers, source)

@@ -1,0 +1,145 @@
+"""Scan matching of location grids built from synthetic lidar clouds of known worlds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from navtopo.geometry import between, compose, inverse, wrap_angle
+from navtopo.local_grid import GridConfig, grid_from_points
+from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match
+
+try:
+    from test_local_grid import WALL_HEIGHT, RasterWorld, box_room, lidar_scan
+except ImportError:  # tests/ collected as a package
+    from tests.test_local_grid import WALL_HEIGHT, RasterWorld, box_room, lidar_scan
+
+
+def building() -> RasterWorld:
+    """A 34 m corridor (2.4 m wide) with irregular door niches, side rooms, a hall, furniture of
+    several heights and a pillar: structure every few metres, as the bundled scenes have."""
+    world = RasterWorld(-2.0, -9.0, 40.0, 18.0).add_box(-2.0, 38.0, -9.0, 9.0)  # solid rock
+    heights = world.heights
+
+    def carve(x0, x1, y0, y1):
+        c0, c1 = (int(round((v - world.x0) / world.res)) for v in (x0, x1))
+        r0, r1 = (int(round((v - world.y0) / world.res)) for v in (y0, y1))
+        heights[r0:r1, c0:c1] = 0.0
+
+    carve(0.0, 34.0, -1.2, 1.2)  # the corridor
+    for x, width, depth in ((2.5, 1.0, 0.6), (8.7, 1.4, 0.5), (18.0, 0.9, 0.8), (27.5, 1.2, 0.6)):
+        carve(x, x + width, 1.2, 1.2 + depth)  # door niches, north side
+    for x, width, depth in ((5.0, 3.0, 4.0), (14.5, 5.0, 3.0), (25.0, 2.5, 5.0)):
+        carve(x, x + width, -1.2 - depth, -1.2)  # side rooms, south side
+    carve(11.0, 15.0, 1.2, 6.0)  # a hall, north side
+    for box in (
+        (7.0, 7.4, -1.2, -0.9, 1.0),
+        (12.0, 12.8, 4.5, 5.2, 0.8),
+        (16.0, 16.5, 0.7, 1.2, 0.5),
+        (22.0, 22.3, -1.2, -0.8, 0.3),
+        (30.0, 30.4, 0.8, 1.2, WALL_HEIGHT),  # a pillar
+        (26.0, 27.0, -5.5, -5.0, 1.2),
+    ):
+        world.add_box(*box)
+    return world
+
+
+CONFIG = GridConfig()
+WORLD = building()
+
+
+def grid_at(pose, world=WORLD):
+    return grid_from_points(lidar_scan(world, np.asarray(pose), ceiling=WALL_HEIGHT), CONFIG)
+
+
+def pose_error(result: MatchResult, truth) -> tuple[float, float]:
+    error = result.pose - truth
+    return float(np.hypot(error[0], error[1])), float(np.degrees(abs(wrap_angle(error[2]))))
+
+
+# reference at A; the query 2 m further along the corridor, 0.4 m aside, turned by 20°
+POSE_A = np.array([9.0, 0.3, 0.1])
+POSE_B = np.array([11.0, -0.1, 0.1 + np.radians(20.0)])
+
+
+@pytest.fixture(scope="module")
+def grids():
+    return grid_at(POSE_A), grid_at(POSE_B)
+
+
+def test_recovers_a_2m_20deg_offset_without_a_guess(grids):
+    reference, query = grids
+    result = match(reference, query)
+    translation, rotation = pose_error(result, between(POSE_A, POSE_B))
+    assert result.accepted and result.source == "features"
+    assert translation < 0.1 and rotation < 1.0
+    assert result.inliers >= 6 and result.wall_agreement > 0.9 and result.overlap > 0.5
+    assert result.pose.shape == (3,) and result.pose.dtype == np.float64
+
+
+def test_an_odometry_guess_is_refined(grids):
+    reference, query = grids
+    truth = between(POSE_A, POSE_B)
+    guess = compose(truth, np.array([0.35, -0.25, np.radians(6.0)]))
+    result = match(reference, query, initial_guess=guess)
+    translation, rotation = pose_error(result, truth)
+    assert result.accepted and translation < 0.1 and rotation < 1.0
+
+
+def test_a_wrong_guess_does_not_stop_the_features(grids):
+    """A guess 1.5 m and 25° off: ICP from it fails the verdict, the gated features still find
+    the pose."""
+    reference, query = grids
+    truth = between(POSE_A, POSE_B)
+    result = match(reference, query, initial_guess=compose(truth, np.array([1.2, 0.9, 0.44])))
+    translation, rotation = pose_error(result, truth)
+    assert result.accepted and translation < 0.1 and rotation < 1.0
+
+
+def test_direction_convention_swaps_to_the_inverse(grids):
+    """match(reference, query) is the query's pose in the reference frame, between(A, B); with
+    the roles swapped it is between(B, A) = inverse(between(A, B))."""
+    reference, query = grids
+    forward = match(reference, query)
+    backward = match(query, reference)
+    assert backward.accepted
+    translation, rotation = pose_error(backward, between(POSE_B, POSE_A))
+    assert translation < 0.1 and rotation < 1.0
+    roundtrip = compose(forward.pose, backward.pose)
+    assert np.hypot(*roundtrip[:2]) < 0.1 and abs(roundtrip[2]) < np.radians(1.0)
+    # the wrong convention (the inverse) is far from the answer
+    assert np.hypot(*(inverse(forward.pose) - forward.pose)[:2]) > 1.0
+
+
+def test_prepared_grids_give_the_same_result(grids):
+    reference, query = grids
+    plain = match(reference, query)
+    prepared = match(PreparedGrid(reference, CONFIG), PreparedGrid(query, CONFIG))
+    np.testing.assert_allclose(prepared.pose, plain.pose)
+    assert prepared.score == pytest.approx(plain.score)
+
+
+def test_different_places_are_rejected(grids):
+    reference, _ = grids
+    hall = grid_at(np.array([6.0, 5.0, 0.4]), world=box_room())
+    far_in_corridor = grid_at(np.array([31.5, -0.2, -2.0]))  # 22 m away, turned
+    for other in (hall, far_in_corridor):
+        for guess in (None, np.zeros(3)):
+            assert not match(reference, other, initial_guess=guess).accepted
+            assert not match(other, reference, initial_guess=guess).accepted
+
+
+def test_empty_grids_are_rejected_without_error(grids):
+    reference, _ = grids
+    empty = np.zeros_like(reference)
+    result = match(reference, empty)
+    assert not result.accepted and result.source == "none" and result.score == 0.0
+    guess = np.array([1.0, 2.0, 0.3])
+    np.testing.assert_allclose(match(empty, empty, initial_guess=guess).pose, guess)
+
+
+def test_config_rejects_unknown_keys():
+    with pytest.raises(ValidationError):
+        MatchingConfig(ransac_iters=10)
+    assert MatchingConfig().min_wall_agreement > 0.5
