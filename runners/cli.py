@@ -55,6 +55,9 @@ def run(
     executor: Annotated[str, typer.Option(help="local or ray")] = "local",
     ray_address: Annotated[str | None, typer.Option(help="address of a running Ray cluster")] = None,
     results: Annotated[Path, typer.Option(help="root of the results folders")] = Path("results"),
+    config_file: Annotated[
+        Path | None, typer.Option("--config", help="YAML {system: {key: value}} merged over the defaults (see `config`)")
+    ] = None,
 ) -> None:
     """Map each scenario's route with every system, then run the navigation trials."""
     from runners.run import RunOptions, execute
@@ -73,8 +76,11 @@ def run(
             fail(f"--seeds: not a list of integers: {seeds!r}")
     if resume is not None and not (resume / "manifest.json").is_file():
         fail(f"{resume}: not a run folder (manifest.json missing)")
+    if out is not None and resume is None and (out / "manifest.json").exists():
+        fail(f"{out}: already holds a run; use --resume {out} to finish it, or another --out")
     if out is not None and (len(scenarios) > 1 or len(seed_list) > 1):
         fail("--out takes one scenario and one seed; leave it out to get a folder per run")
+    overrides = _read_overrides(config_file, names) if config_file is not None else None
     loaded = []
     for name in scenarios:
         loaded.append(_load(name))
@@ -90,8 +96,35 @@ def run(
                 executor=executor,
                 ray_address=ray_address,
                 results_root=results,
+                config_overrides=overrides,
             )
             _run_one(scenario, options, execute)
+
+
+def _read_overrides(path: Path, names: list[str]) -> dict:
+    import yaml
+    from pydantic import ValidationError
+
+    from runners.run import resolved_configs
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        fail(f"{path}: no such file")
+    except yaml.YAMLError as exc:
+        fail(f"{path}: not valid YAML ({exc})".replace("\n", " "))
+    if not isinstance(data, dict):
+        fail(f"{path}: expected a mapping of system names to settings")
+    for name in data:
+        if name not in names:
+            fail(f"{path}: {name}: not one of the systems of this run ({', '.join(names)})")
+    try:
+        resolved_configs(names, data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        key = ".".join(str(p) for p in first["loc"])
+        fail(f"{path}: {key}: {first['msg']}")
+    return data
 
 
 def _run_one(scenario, options, execute) -> None:
@@ -103,8 +136,14 @@ def _run_one(scenario, options, execute) -> None:
         total_trials = 0
         trial_task = None
 
+        logged_tenths = [-1]
+
         def on_mapping(travelled: float, total: float) -> None:
             progress.update(mapping_task, completed=min(round(travelled), round(total)))
+            tenth = int(10 * travelled / max(total, 1e-9))
+            if not console.is_terminal and tenth > logged_tenths[0]:  # logs and CI: a line every 10 %
+                logged_tenths[0] = tenth
+                progress.console.print(f"  mapping {scenario.name}: {travelled:.0f} / {total:.0f} m", highlight=False)
 
         def on_stage(message: str) -> None:
             nonlocal trial_task, total_trials
@@ -128,6 +167,19 @@ def _run_one(scenario, options, execute) -> None:
             run_dir = execute(scenario, options, on_mapping=on_mapping, on_trial=on_trial, on_stage=on_stage)
         except ExecutorUnavailable as exc:
             fail(str(exc))
+        except KeyboardInterrupt:
+            fail("interrupted; finish the run with --resume <run folder>", code=130)
+        except Exception as exc:  # one line for the user, the traceback in the log
+            import traceback
+
+            log = Path("navtopo-bench-error.log").resolve()
+            log.write_text(traceback.format_exc())
+            fail(
+                f"run of {scenario.name} failed: {type(exc).__name__}: {exc} (traceback in {log}; --resume continues)".replace(
+                    "\n", " "
+                ),
+                code=1,
+            )
     print_summary(run_dir.root)
     console.print(f"results: [bold]{run_dir.root}[/]")
 

@@ -63,11 +63,13 @@ def run_mapping(
         observe_ms: dict[str, list[float]] = {name: [] for name in instances}
         growth: dict[str, list[list[float]]] = {name: [] for name in instances}
         true_at_stamp: dict[float, np.ndarray] = {}
+        travelled_at_stamp: dict[float, float] = {}
         next_growth = 0.0
         scans = 0
         for _ in range(max_ticks):
             obs = sim.observe()
             true_at_stamp[obs.stamp] = sim.true_pose
+            travelled_at_stamp[obs.stamp] = sim.travelled_m
             scans += 1
             for name, system in instances.items():
                 t0 = time.perf_counter()
@@ -105,6 +107,13 @@ def run_mapping(
             stamped_edges = stats.pop("edges_stamped", None)
             if stamped_edges is not None:
                 report["edge_error"] = edge_errors(stamped_edges, true_at_stamp)
+            vertex_stamps = stats.pop("vertex_stamps", None)
+            if vertex_stamps is not None:
+                # revisits should reuse locations: the share of vertices made in the route's second half
+                half = sim.travelled_m / 2.0
+                late = sum(1 for stamp in vertex_stamps if travelled_at_stamp.get(stamp, 0.0) > half)
+                report["vertices_second_half"] = late
+                report["vertices_second_half_share"] = round(late / max(len(vertex_stamps), 1), 4)
             report.update(stats)
             write_json(run.mapping_path(name), report)
             reports[name] = report

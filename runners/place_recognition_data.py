@@ -34,11 +34,12 @@ from navtopo.place_recognition import (
     PlaceRecognitionDataset,
     TrainingConfig,
     TrainingProgress,
+    evaluate_revisits,
     make_descriptor,
     train,
 )
 from runners.sim import Simulator
-from scenarios import Scenario, bundled_names
+from scenarios import Scenario, bundled_names, load_scenario
 from scenarios.generators import corridor_tree
 from scenarios.scenario import build_scenario
 from scenarios.schema import parse_spec
@@ -73,8 +74,9 @@ def route_poses(
     lateral_jitter_m: float = 0.0,
     yaw_jitter_rad: float = 0.0,
     rng: np.random.Generator | None = None,
-) -> NDArray[np.float64]:
-    """(P, 3) poses [x, y, yaw] every ``spacing_m`` of arc length along the mapping route."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(P, 3) poses [x, y, yaw] every ``spacing_m`` of arc length along the mapping route, and
+    (P,) their arc lengths (the distance driven to reach them)."""
     rng = rng or np.random.default_rng(0)
     route = scenario.route
     steps = np.diff(route, axis=0)
@@ -97,7 +99,7 @@ def route_poses(
         xy = np.where(ok[:, None], shifted, xy)
     yaw = heading + rng.uniform(-yaw_jitter_rad, yaw_jitter_rad, len(xy))
     yaw = (yaw + np.pi) % (2.0 * np.pi) - np.pi
-    return np.column_stack([xy, yaw])
+    return np.column_stack([xy, yaw]), stations
 
 
 def record_world(scenario: Scenario, world_id: int, config: ScanDataConfig, rng: np.random.Generator) -> PlaceRecognitionDataset:
@@ -106,7 +108,7 @@ def record_world(scenario: Scenario, world_id: int, config: ScanDataConfig, rng:
     with Simulator(scenario, seed=int(rng.integers(2**31))) as sim:
         for sequence in range(config.passes):
             first = sequence == 0
-            poses = route_poses(
+            poses, _ = route_poses(
                 scenario,
                 config.spacing_m,
                 offset_m=0.0 if first else config.spacing_m / 2.0,
@@ -158,6 +160,29 @@ def cached_scans(path: Path, config: ScanDataConfig, progress: Callable[[str], N
     return scans
 
 
+def evaluate_scenario(
+    scenario: Scenario, descriptors: list[str], spacing_m: float = 1.0, min_gap_m: float = 30.0
+) -> dict[str, dict]:
+    """Recall@1/@5 of each descriptor along a scenario's mapping route (3 m threshold).
+
+    The robot is placed every ``spacing_m`` along the route facing along it; each scan queries
+    the scans taken at least ``min_gap_m`` of driving earlier (``evaluate_revisits``). Evaluation
+    only: bundled scenarios are fine here, never for training.
+    """
+    poses, travelled = route_poses(scenario, spacing_m)
+    with Simulator(scenario) as sim:
+        clouds = [sim.scan(pose) for pose in poses]
+    results: dict[str, dict] = {}
+    for name in descriptors:
+        try:
+            descriptor = make_descriptor(name)
+        except FileNotFoundError as error:  # a learned descriptor without shipped weights
+            results[name] = {"error": str(error)}
+            continue
+        results[name] = evaluate_revisits(descriptor, clouds, poses[:, :2], travelled, min_gap_m=min_gap_m)
+    return results
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--descriptor", default="minkloc3d")
@@ -166,7 +191,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--data-dir", type=Path, default=Path("data/place_recognition"))
     parser.add_argument("--out", type=Path, default=WEIGHTS_DIR)
+    parser.add_argument("--eval", metavar="SCENARIO", help="only evaluate the shipped descriptors on SCENARIO")
     args = parser.parse_args(argv)
+    if args.eval:
+        if args.threads:
+            import torch
+
+            torch.set_num_threads(args.threads)
+        names = ["scan_context", "minkloc3d", "polar_bev"]
+        print(json.dumps(evaluate_scenario(load_scenario(args.eval, with_trials=False), names), indent=2))
+        return
 
     say = print
     train_config = ScanDataConfig(worlds=args.worlds)

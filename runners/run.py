@@ -37,6 +37,7 @@ class RunOptions:
     executor: str = "local"
     ray_address: str | None = None
     results_root: Path = Path("results")
+    config_overrides: dict[str, Any] | None = None  # {system: {key: value, ...}} merged over the defaults
 
 
 def git_revision() -> str | None:
@@ -73,8 +74,21 @@ def machine() -> dict[str, Any]:
     }
 
 
-def resolved_configs(names: list[str]) -> dict[str, Any]:
-    return {name: get_system(name).default_config().model_dump(mode="json") for name in names}
+def deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in overrides.items():
+        merged[key] = deep_merge(merged[key], value) if isinstance(value, dict) and isinstance(merged.get(key), dict) else value
+    return merged
+
+
+def resolved_configs(names: list[str], overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Each system's full config: defaults with the overrides merged in, validated by its model."""
+    out = {}
+    for name in names:
+        entry = get_system(name)
+        data = deep_merge(entry.default_config().model_dump(mode="json"), (overrides or {}).get(name) or {})
+        out[name] = entry.config_model.model_validate(data).model_dump(mode="json")
+    return out
 
 
 def new_run_dir(options: RunOptions, scenario: Scenario, seed: int) -> RunDir:
@@ -109,7 +123,7 @@ def execute(
         systems = options.systems
         seed = scenario.spec.seed if options.seed is None else options.seed
         trial_count = len(scenario.trials) if options.trials is None else min(options.trials, len(scenario.trials))
-        configs = resolved_configs(systems)
+        configs = resolved_configs(systems, options.config_overrides)
         run = new_run_dir(options, scenario, seed)
         run.root.mkdir(parents=True, exist_ok=True)
         write_json(

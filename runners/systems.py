@@ -114,15 +114,29 @@ def register_system(
 
 
 def _load_builtin() -> None:
-    # systems register themselves on import; importing here keeps the registry complete
-    import importlib
+    """Register the systems of the lower layers: they never import the runner (DESIGN.md), so the
+    registry names them here."""
+    if "navtopo" not in _REGISTRY:
+        from navtopo.system import NavTopo, NavTopoConfig
 
-    for module in ("navtopo.system", "baselines.metric_grid.system"):
+        register_system(
+            "navtopo",
+            config=NavTopoConfig,
+            description="NavTopo: graph of locations (PRISM-TopoMap), place recognition, scan matching",
+        )(NavTopo)
+    if "metric_grid" not in _REGISTRY:
         try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
+            from baselines.metric_grid.system import MetricGrid, MetricGridConfig
+        except ModuleNotFoundError as exc:  # the baseline lands in its own milestone
+            if exc.name != "baselines.metric_grid.system":
                 raise
+        else:
+            register_system(
+                "metric_grid",
+                config=MetricGridConfig,
+                wants_initial_pose=True,
+                description="kiss-icp + gtsam pose graph + global 0.1 m occupancy grid + Theta*",
+            )(MetricGrid)
 
 
 def registry() -> dict[str, SystemEntry]:

@@ -1,0 +1,129 @@
+"""Localization in the graph of locations (Muravyev & Yakovlev, Sec. "Localization").
+
+Two stages: place recognition picks the ``top_k`` vertices whose descriptors are nearest to the
+current scan's; scan matching of 2D grids verifies each and gives the robot's pose in it. An
+odometry hint (the robot's pose predicted from a vertex's stored odometry pose, valid while one
+odometry frame lasts) seeds the matcher and gates candidates that drift cannot explain; without
+hints (a fresh start, as at the beginning of a navigation trial) every candidate is matched
+globally. No ground truth is involved anywhere.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from navtopo.geometry import between
+from navtopo.graph import TopologicalGraph
+from navtopo.local_grid import GridConfig
+from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match, prepare
+
+
+class LocalizationConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    top_k: int = Field(5, ge=1, description="place-recognition candidates verified by scan matching (the paper: 5)")
+    drift_base: float = Field(3.0, ge=0, description="hint gate: candidates farther than this (m) ...")
+    drift_per_metre: float = Field(
+        0.05, ge=0, description="... plus this share of the odometry travelled between them are skipped"
+    )
+    cache_size: int = Field(128, ge=1, description="prepared vertex grids kept in memory")
+
+
+@dataclass(frozen=True)
+class Localized:
+    vertex: int
+    pose: NDArray[np.float64]  # (3,) robot pose in the vertex's frame
+    result: MatchResult
+
+
+class VertexGrids:
+    """Prepared (matchable) full grids of vertices, made on demand and kept in an LRU cache."""
+
+    def __init__(self, graph: TopologicalGraph, grid_config: GridConfig, matching: MatchingConfig, size: int) -> None:
+        self.graph = graph
+        self.grid_config = grid_config
+        self.matching = matching
+        self.size = size
+        self._cache: OrderedDict[int, PreparedGrid] = OrderedDict()
+
+    def get(self, vertex: int) -> PreparedGrid:
+        prepared = self._cache.get(vertex)
+        if prepared is None:
+            prepared = prepare(self.graph.vertices[vertex].grid.to_grid(), self.grid_config, self.matching)
+            self._cache[vertex] = prepared
+            if len(self._cache) > self.size:
+                self._cache.popitem(last=False)
+        else:
+            self._cache.move_to_end(vertex)
+        return prepared
+
+    def forget(self, vertex: int) -> None:
+        self._cache.pop(vertex, None)
+
+
+class Localizer:
+    def __init__(
+        self,
+        graph: TopologicalGraph,
+        grids: VertexGrids,
+        config: LocalizationConfig,
+        matching: MatchingConfig,
+        grid_config: GridConfig,
+    ) -> None:
+        self.graph = graph
+        self.grids = grids
+        self.config = config
+        self.matching = matching
+        self.grid_config = grid_config
+
+    def verify(
+        self,
+        query: PreparedGrid,
+        vertex: int,
+        guess: NDArray[np.float64] | None = None,
+        max_jump: float | None = None,
+    ) -> Localized | None:
+        """Match the current grid against one vertex; the robot's pose in it, or None."""
+        result = match(self.grids.get(vertex), query, initial_guess=guess, config=self.matching, grid_config=self.grid_config)
+        if not result.accepted:
+            return None
+        if guess is not None and max_jump is not None and float(np.hypot(*(result.pose[:2] - guess[:2]))) > max_jump:
+            return None
+        return Localized(vertex, result.pose, result)
+
+    def localize(
+        self,
+        query: PreparedGrid,
+        descriptor: NDArray[np.float32],
+        exclude: set[int] | None = None,
+        robot_hint: NDArray[np.float64] | None = None,
+        hint_gate: dict[int, float] | None = None,
+    ) -> list[Localized]:
+        """Verified candidates among the ``top_k`` descriptor neighbours, best score first.
+
+        robot_hint: the robot's pose in the odometry frame of the vertices' hints, if that frame
+        is still the current one; then each candidate's hint gives a guess for the matcher and
+        candidates farther than ``hint_gate[v]`` (m) from the hint are skipped.
+        """
+        ids, _ = self.graph.nearest(descriptor, self.config.top_k)
+        found: list[Localized] = []
+        for vertex in (int(v) for v in ids):
+            if exclude and vertex in exclude:
+                continue
+            guess, gate = None, None
+            if robot_hint is not None:
+                guess = between(self.graph.vertices[vertex].pose_hint, robot_hint)
+                gate = (hint_gate or {}).get(vertex, np.inf)
+                if float(np.hypot(guess[0], guess[1])) > gate:
+                    continue
+            # a hinted match may move the robot away from its hint by what drift explains, no more
+            located = self.verify(query, vertex, guess, gate)
+            if located is not None:
+                found.append(located)
+        found.sort(key=lambda loc: -loc.result.score)
+        return found

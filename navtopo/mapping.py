@@ -1,0 +1,242 @@
+"""Graph maintenance (Muravyev & Yakovlev, Sec. "Graph Maintaining", after PRISM-TopoMap).
+
+At every update the maintainer knows the current vertex ``current`` and the robot's pose in
+it, ``pose_in_current``, integrated from odometry. Then, in the paper's order:
+
+1. still inside the current location? (the robot's cell in the location's grid is known, the
+   known-area IoU of the current grid with the location's is at least ``iou_threshold``, and the
+   robot is within ``max_edge_length`` of the location's centre) → keep it; scan matching
+   against the location corrects ``pose_in_current`` when it agrees with odometry;
+2. else move along an edge: the neighbours nearer than the current centre, each verified by scan
+   matching seeded with the pose the edge predicts;
+3. else a verified localization result (top-k descriptors, scan matching seeded by the
+   vertices' odometry hints and gated by the drift odometry can explain); an edge to it is added
+   if it passes the checks below — a loop closure when the graph's way round is much longer;
+4. else add a new location at the robot's pose, with an edge from the current one.
+
+Every new edge is checked first (the reference code did not): its length must be at most
+``2 * max_edge_length``, and where the graph already joins its ends by a path that is not much
+longer (no loop to close), the edge must agree with the pose composed along that path.
+Relative poses follow ``navtopo.geometry``: an edge (u, v, T_uv) holds v's observation point in
+u's frame. No ground truth enters: vertices live in their own frames and their odometry poses are
+kept only as hints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from navtopo.geometry import between, compose, inverse
+from navtopo.graph import TopologicalGraph
+from navtopo.local_grid import UNKNOWN, CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
+from navtopo.localization import LocalizationConfig, Localizer, VertexGrids
+from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
+
+
+class MappingConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    update_distance: float = Field(0.25, gt=0, description="the graph is updated after this much motion (m) ...")
+    update_angle_deg: float = Field(15.0, gt=0, description="... or this much turning; odometry is integrated at every scan")
+    iou_threshold: float = Field(0.3, gt=0, le=1, description="still inside: known-area IoU with the location at least this")
+    max_edge_length: float = Field(5.0, gt=0, description="still inside: at most this far from the location's centre (m)")
+    max_neighbour_jump: float = Field(1.0, gt=0, description="a move along an edge may correct odometry by at most this (m)")
+    max_correction: float = Field(0.5, gt=0, description="an in-location correction may move the pose by at most this (m)")
+    edge_tolerance: float = Field(1.0, gt=0, description="a new edge agrees with the graph's path within this (m) ...")
+    edge_tolerance_per_metre: float = Field(0.05, ge=0, description="... plus this share of the path length")
+    loop_ratio: float = Field(2.0, gt=1, description="a path longer than this times the edge closes a loop")
+
+
+@dataclass
+class MappingCounters:
+    updates: int = 0
+    inside: int = 0
+    corrections: int = 0
+    moved_along_edge: int = 0
+    localized: int = 0
+    loop_closures: int = 0
+    new_vertices: int = 0
+    rejected_edges: int = 0
+    matches: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+
+
+class GraphMaintainer:
+    """Builds the graph online (``mapping=True``) or tracks the robot in a fixed graph."""
+
+    def __init__(
+        self,
+        graph: TopologicalGraph,
+        describe,  # callable: points (N, 3) float32 -> (D,) float32 descriptor
+        grid_config: GridConfig,
+        matching: MatchingConfig,
+        config: MappingConfig,
+        localization: LocalizationConfig,
+        mapping: bool = True,
+    ) -> None:
+        self.graph = graph
+        self.describe = describe
+        self.grid_config = grid_config
+        self.matching = matching
+        self.config = config
+        self.mapping = mapping
+        self.grids = VertexGrids(graph, grid_config, matching, localization.cache_size)
+        self.localizer = Localizer(graph, self.grids, localization, matching, grid_config)
+        self.current: int | None = None
+        self.pose_in_current = np.zeros(3)
+        self.counters = MappingCounters()
+        self._last_odom: NDArray[np.float64] | None = None
+        self._odom_at_update: NDArray[np.float64] | None = None
+        self._odometer = 0.0  # metres of odometry travelled
+        self._odometer_at_vertex: dict[int, float] = {}
+
+    # -- odometry ----------------------------------------------------------------------------------
+
+    def integrate(self, odom: NDArray[np.float64]) -> None:
+        if self._last_odom is not None:
+            delta = between(self._last_odom, odom)
+            self.pose_in_current = compose(self.pose_in_current, delta)
+            self._odometer += float(np.hypot(delta[0], delta[1]))
+        self._last_odom = np.asarray(odom, dtype=np.float64).copy()
+
+    def due(self, odom: NDArray[np.float64]) -> bool:
+        if self.current is None or self._odom_at_update is None:
+            return True
+        delta = between(self._odom_at_update, odom)
+        return bool(
+            np.hypot(delta[0], delta[1]) >= self.config.update_distance
+            or abs(delta[2]) >= np.radians(self.config.update_angle_deg)
+        )
+
+    # -- the update --------------------------------------------------------------------------------
+
+    def update(self, points: NDArray[np.float32], odom: NDArray[np.float64], stamp: float) -> str:
+        """Integrate odometry and, when due, update the state (and, mapping, the graph).
+
+        Returns what happened: "odometry", "inside", "edge", "localized", "new_vertex" or "lost".
+        """
+        self.integrate(odom)
+        if not self.due(odom):
+            return "odometry"
+        self._odom_at_update = np.asarray(odom, dtype=np.float64).copy()
+        self.counters.updates += 1
+        grid = grid_from_points(points, self.grid_config)
+        if self.current is None and self.mapping:
+            self._add_vertex(grid, points, odom, stamp, edge_from_current=False)
+            return "new_vertex"
+        query = prepare(grid, self.grid_config, self.matching)
+        if self.current is not None and self._inside(grid):
+            self.counters.inside += 1
+            self._correct(query)
+            return "inside"
+        if self.current is not None and self._move_along_edge(query):
+            self.counters.moved_along_edge += 1
+            return "edge"
+        if self._localize(query, points, odom):
+            self.counters.localized += 1
+            return "localized"
+        if self.mapping:
+            self._add_vertex(grid, points, odom, stamp, edge_from_current=self.current is not None)
+            return "new_vertex"
+        return "lost"
+
+    def _inside(self, grid: NDArray[np.uint8]) -> bool:
+        assert self.current is not None
+        pose = self.pose_in_current
+        if float(np.hypot(pose[0], pose[1])) > self.config.max_edge_length:
+            return False
+        vertex_grid = self.grids.get(self.current).grid
+        row, col = xy_to_cell(pose[None, :2], self.grid_config)[0]
+        size = vertex_grid.shape[0]
+        if not (0 <= row < size and 0 <= col < size) or vertex_grid[row, col] == UNKNOWN:
+            return False
+        return overlap(vertex_grid, grid, pose, self.grid_config) >= self.config.iou_threshold
+
+    def _correct(self, query: PreparedGrid) -> None:
+        assert self.current is not None
+        located = self.localizer.verify(query, self.current, self.pose_in_current, self.config.max_correction)
+        self.counters.matches += 1
+        if located is not None:
+            self.pose_in_current = located.pose
+            self.counters.corrections += 1
+
+    def _move_along_edge(self, query: PreparedGrid) -> bool:
+        assert self.current is not None
+        here = self.pose_in_current
+        distance_to_current = float(np.hypot(here[0], here[1]))
+        options = []
+        for vertex, pose_uv in self.graph.neighbours(self.current):
+            distance = float(np.hypot(*(pose_uv[:2] - here[:2])))
+            if distance < distance_to_current or distance < self.config.max_edge_length:
+                options.append((distance, vertex, pose_uv))
+        for _, vertex, pose_uv in sorted(options, key=lambda o: o[0]):
+            guess = between(pose_uv, here)  # the robot in the neighbour's frame, by the edge
+            self.counters.matches += 1
+            located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
+            if located is not None:
+                self._switch(vertex, located.pose)
+                return True
+        return False
+
+    def _localize(self, query: PreparedGrid, points: NDArray[np.float32], odom: NDArray[np.float64]) -> bool:
+        if len(self.graph) == 0:
+            return False
+        descriptor = self.describe(points)
+        exclude = {self.current} if self.current is not None else set()
+        hint, gates = None, None
+        if self.mapping and self.current is not None:
+            # the vertices' hints share the mapping run's odometry frame with the robot
+            hint = np.asarray(odom, dtype=np.float64)
+            gates = {
+                v: self.localizer.config.drift_base + self.localizer.config.drift_per_metre * abs(self._odometer - travelled)
+                for v, travelled in self._odometer_at_vertex.items()
+            }
+        found = self.localizer.localize(query, descriptor, exclude=exclude, robot_hint=hint, hint_gate=gates)
+        self.counters.matches += min(self.localizer.config.top_k, len(self.graph))
+        for located in found:
+            if self.current is None:
+                self._switch(located.vertex, located.pose)
+                return True
+            # the located vertex's centre in the current frame, through the robot
+            pose_cu = compose(self.pose_in_current, inverse(located.pose))
+            if self.mapping and not self._edge_acceptable(self.current, located.vertex, pose_cu):
+                continue
+            if self.mapping and not self.graph.has_edge(self.current, located.vertex):
+                self.graph.add_edge(self.current, located.vertex, pose_cu)
+            self._switch(located.vertex, located.pose)
+            return True
+        return False
+
+    def _edge_acceptable(self, u: int, v: int, pose_uv: NDArray[np.float64]) -> bool:
+        length = float(np.hypot(pose_uv[0], pose_uv[1]))
+        if length > 2.0 * self.config.max_edge_length:
+            self.counters.rejected_edges += 1
+            return False
+        path, path_length = self.graph.shortest_path(u, v)
+        if path is not None and path_length < self.config.loop_ratio * max(length, 1.0):
+            composed = self.graph.path_pose(path)
+            error = float(np.hypot(*(composed[:2] - pose_uv[:2])))
+            if error > self.config.edge_tolerance + self.config.edge_tolerance_per_metre * path_length:
+                self.counters.rejected_edges += 1
+                return False
+        elif path is not None:
+            self.counters.loop_closures += 1
+        return True
+
+    # -- graph changes -----------------------------------------------------------------------------
+
+    def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64]) -> None:
+        self.current = vertex
+        self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()
+
+    def _add_vertex(self, grid, points, odom, stamp: float, edge_from_current: bool) -> None:
+        vertex = self.graph.add_vertex(CroppedGrid.from_grid(grid), self.describe(points), odom, stamp)
+        self._odometer_at_vertex[vertex] = self._odometer
+        self.counters.new_vertices += 1
+        if edge_from_current and self.current is not None:
+            self.graph.add_edge(self.current, vertex, self.pose_in_current)
+        self._switch(vertex, np.zeros(3))

@@ -1,0 +1,119 @@
+"""NavTopo graph maintenance on simulated scans, against the simulator's true poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from navtopo import geometry as se2
+from navtopo.follower import FollowerConfig, PathFollower
+from navtopo.graph import TopologicalGraph
+from navtopo.system import NavTopo, NavTopoConfig
+from navtopo.types import Command
+from runners.sim import Simulator
+from scenarios import load_scenario
+
+
+def two_rooms(tmp_path: Path) -> Path:
+    """Two furnished 6 x 5 m rooms joined by a 14 m corridor with niches."""
+    spec = {
+        "format": "navtopo-scenario/1",
+        "name": "two_rooms",
+        "world": {
+            "rooms": [
+                {"center": [0, 0], "size": [6, 5]},
+                {"center": [20, 0], "size": [6, 5]},
+                {"center": [7, 1.3], "size": [1.2, 0.6]},
+                {"center": [13, -1.3], "size": [1.6, 0.6]},
+            ],
+            "corridors": [{"points": [[2.5, 0], [17.5, 0]], "width": 2.0}],
+            "obstacles": [
+                {"center": [-2.0, 1.8], "size": [1.0, 0.6], "height": 0.8},
+                {"center": [1.5, -1.9], "size": [0.6, 0.6], "height": 1.6},
+                {"center": [21.5, 1.5], "size": [0.8, 0.8], "height": 0.5},
+                {"center": [18.5, -1.8], "size": [1.2, 0.5], "height": 2.0},
+            ],
+        },
+        "mapping_route": {"waypoints": [[0, 0], [20, 0]]},
+        "trials": [],
+    }
+    path = tmp_path / "two_rooms.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory):
+    return load_scenario(two_rooms(tmp_path_factory.mktemp("s")))
+
+
+def config() -> NavTopoConfig:
+    return NavTopoConfig(descriptor="scan_context")
+
+
+def test_turning_in_place_keeps_one_location_and_leaving_the_room_adds_more(scenario):
+    system = NavTopo.create(config())
+    with Simulator(scenario) as sim:
+        sim.reset([0.0, 0.0, 0.0])
+        true_at = {}
+        for _ in range(25):  # a full turn and more, in place
+            obs = sim.observe()
+            true_at[obs.stamp] = sim.true_pose
+            system.observe(obs)
+            sim.step(Command(0.0, 1.5))
+        assert len(system.graph) == 1
+        assert system.maintainer.counters.inside > 5
+
+        follower = PathFollower(FollowerConfig())
+        follower.set_path(np.array([[0.0, 0.0], [20.0, 0.0]]))
+        while not follower.reached:
+            obs = sim.observe()
+            true_at[obs.stamp] = sim.true_pose
+            system.observe(obs)
+            sim.step(follower.command(sim.true_pose))
+        assert sim.collisions == 0
+    # 20 m with locations at most 5 m from their centre: several, but not one per scan
+    assert 3 <= len(system.graph) <= 8
+    # the robot is in the last location, where its tracked pose matches the truth
+    current = system.maintainer.current
+    vertex_true = true_at[system.graph.vertices[current].stamp]
+    estimated = se2.compose(vertex_true, system.maintainer.pose_in_current)
+    assert se2.distance(estimated, sim.true_pose) < 0.25
+    # every edge is the true relative pose of its vertices' observation points
+    assert system.graph.edge_count >= len(system.graph) - 1
+    for u, v, pose_uv in system.graph.edges():
+        truth = se2.between(true_at[system.graph.vertices[u].stamp], true_at[system.graph.vertices[v].stamp])
+        error = se2.between(truth, pose_uv)
+        assert np.hypot(error[0], error[1]) < 0.3 and abs(np.degrees(error[2])) < 3.0
+
+
+def test_driving_back_reuses_the_locations(scenario):
+    system = NavTopo.create(config())
+    with Simulator(scenario) as sim:
+        sim.reset([0.0, 0.0, 0.0])
+        follower = PathFollower(FollowerConfig())
+        follower.set_path(np.array([[0.0, 0.0], [20.0, 0.0], [0.5, 0.0]]))
+        counts = []
+        while not follower.reached:
+            system.observe(sim.observe())
+            counts.append(len(system.graph))
+            sim.step(follower.command(sim.true_pose))
+    outward = max(counts[: len(counts) // 2])
+    assert len(system.graph) <= outward + 1  # the way back adds (almost) nothing
+
+
+def test_saved_graph_loads_for_navigation_with_the_same_bytes(scenario, tmp_path):
+    system = NavTopo.create(config())
+    with Simulator(scenario) as sim:
+        sim.reset([0.0, 0.0, 0.0])
+        for _ in range(30):
+            system.observe(sim.observe())
+            sim.step(Command(1.0, 0.0))
+    system.save(tmp_path / "map")
+    loaded = NavTopo.load(tmp_path / "map", config())
+    assert loaded.graph.nbytes == system.graph.nbytes and len(loaded.graph) == len(system.graph)
+    assert not loaded.maintainer.mapping
+    assert TopologicalGraph.load(tmp_path / "map")[1]["navtopo_config"]["descriptor"] == "scan_context"
