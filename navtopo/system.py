@@ -64,6 +64,19 @@ class NavTopo:
         self.planning_ms: list[float] = []
         self.update_ms: list[float] = []
 
+    @staticmethod
+    def warm_up() -> None:
+        """Load the compiled kernels (grids, matching, planning) before anything is timed."""
+        from navtopo.grid_search import theta_star
+        from navtopo.local_grid import grid_from_points
+        from navtopo.scan_matching import match
+
+        angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)
+        ring = np.stack([4 * np.cos(angles), 3 * np.sin(angles), np.full(360, 1.0)], 1).astype(np.float32)
+        grid = grid_from_points(ring)
+        match(grid, grid, initial_guess=np.zeros(3))
+        theta_star(np.ones((8, 8), bool), (0, 0), (7, 7))
+
     # -- mapping -----------------------------------------------------------------------------------
 
     @classmethod
