@@ -1,0 +1,333 @@
+"""The global occupancy grid of the metric baseline, and its ROS map_server form.
+
+A log-odds grid (Moravec & Elfes 1985; update and clamping as in OctoMap, Hornung et al. 2013)
+at 0.1 m, with bounds that grow as keyframes arrive. Each keyframe is integrated at its
+(optimised) pose by the rule NavTopo's location grids use, so the comparison is fair: obstacle
+cells from the points in the shared floor/ceiling band, free cells along the rays to every
+return, stopped at the first occupied cell, with the same gaps filled between neighbouring
+azimuths — the compiled tracer of ``navtopo.local_grid`` does the tracing, in a window of the
+global grid around the keyframe. Each cell is updated at most once per keyframe (hit wins over
+miss), so a wall seen from 40 keyframes is not erased by the many rays that graze it.
+
+Layout: ``cells[row, col]``, ``col`` grows with +x and ``row`` with +y; ``origin`` is the
+world position of the lower-left corner of cell (0, 0) (the ROS map origin). Cell values are
+``navtopo.local_grid``'s: ``UNKNOWN`` 0, ``FREE`` 1, ``OCCUPIED`` 2.
+
+Saved as a ROS map_server map (``map.pgm`` + ``map.yaml``, mode trinary): occupied 0, free 254,
+unknown 205, row 0 of the image the largest y, ``negate: 0``, ``occupied_thresh: 0.65``,
+``free_thresh: 0.196``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
+
+from navtopo import geometry as se2
+from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, GridConfig
+from navtopo.local_grid import _trace_scan as trace_scan  # the shared compiled tracer
+
+from .scan2d import free_endpoints
+
+PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
+
+
+class OccupancyConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    resolution: float = Field(0.1, gt=0.0, description="metres per cell")
+    max_range: float = Field(15.0, description="m; the lidar's range, sizes the tracing window")
+    log_odds_hit: float = Field(0.85, description="p = 0.7 (OctoMap)")
+    log_odds_miss: float = Field(-0.4, description="p = 0.4 (OctoMap)")
+    log_odds_min: float = Field(-2.0, description="clamp, p = 0.12")
+    log_odds_max: float = Field(3.5, description="clamp, p = 0.97")
+    occupied_prob: float = Field(0.65, description="above: OCCUPIED (ROS map_saver's 65)")
+    free_prob: float = Field(0.25, description="below: FREE (ROS map_saver's 25)")
+    growth_step: float = Field(5.0, description="m added at a time when the bounds grow")
+    max_gap_deg: float = Field(GridConfig().max_gap_deg, description="as NavTopo's grids: fill between close azimuths")
+
+
+def _logit(p: float) -> float:
+    return float(np.log(p / (1.0 - p)))
+
+
+@dataclass
+class GridMap:
+    """A trinary grid in the map frame: the navigation map as saved and loaded.
+
+    cells: (H, W) uint8, UNKNOWN / FREE / OCCUPIED, ``cells[row, col]`` with row 0 the lowest y.
+    origin: (2,) world x, y of the lower-left corner of cell (0, 0). resolution: m per cell.
+    """
+
+    cells: NDArray[np.uint8]
+    origin: NDArray[np.float64]
+    resolution: float
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the cells, the origin and the resolution."""
+        return int(self.cells.nbytes + self.origin.nbytes + 8)
+
+    def cell_of(self, xy: ArrayLike) -> NDArray[np.int64]:
+        """World points (N, 2) -> cells (N, 2) as ``[row, col]`` (no bounds check)."""
+        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        col = np.floor((p[:, 0] - self.origin[0]) / self.resolution).astype(np.int64)
+        row = np.floor((p[:, 1] - self.origin[1]) / self.resolution).astype(np.int64)
+        return np.stack([row, col], axis=-1)
+
+    def centres(self, mask: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """World centres (N, 2) of the cells where ``mask`` is set."""
+        return cell_centres(mask, self.origin, self.resolution)
+
+    def save(self, yaml_path: str | Path) -> Path:
+        """Write ``<name>.pgm`` and ``<name>.yaml`` (map_server, trinary); returns the YAML path."""
+        yaml_path = Path(yaml_path)
+        yaml_path.parent.mkdir(parents=True, exist_ok=True)
+        image_path = yaml_path.with_suffix(".pgm")
+        image = np.full(self.cells.shape, PGM_UNKNOWN, np.uint8)
+        image[self.cells == FREE] = PGM_FREE
+        image[self.cells == OCCUPIED] = PGM_OCCUPIED
+        height, width = image.shape
+        header = f"P5\n# navtopo-bench metric_grid, {self.resolution} m/cell\n{width} {height}\n255\n"
+        image_path.write_bytes(header.encode("ascii") + np.flipud(image).tobytes())
+        meta = {
+            "image": image_path.name,
+            "mode": "trinary",
+            "resolution": float(self.resolution),
+            "origin": [float(self.origin[0]), float(self.origin[1]), 0.0],
+            "negate": 0,
+            "occupied_thresh": 0.65,
+            "free_thresh": 0.196,
+        }
+        yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+        return yaml_path
+
+    @classmethod
+    def load(cls, yaml_path: str | Path) -> GridMap:
+        """Read a map_server map (any mode is classified by its thresholds into three values)."""
+        yaml_path = Path(yaml_path)
+        meta = yaml.safe_load(yaml_path.read_text())
+        for key in ("image", "resolution", "origin"):
+            if key not in meta:
+                raise ValueError(f"{yaml_path}: missing key '{key}'")
+        if len(meta["origin"]) >= 3 and abs(float(meta["origin"][2])) > 1e-9:
+            raise ValueError(f"{yaml_path}: a rotated origin (yaw != 0) is not supported")
+        image = read_image(yaml_path.parent / meta["image"])
+        occupancy = image.astype(np.float64) / 255.0
+        if not int(meta.get("negate", 0)):
+            occupancy = 1.0 - occupancy
+        cells = np.full(image.shape, UNKNOWN, np.uint8)
+        cells[occupancy > float(meta.get("occupied_thresh", 0.65))] = OCCUPIED
+        cells[occupancy < float(meta.get("free_thresh", 0.196))] = FREE
+        origin = np.array(meta["origin"][:2], dtype=np.float64)
+        return cls(np.ascontiguousarray(np.flipud(cells)), origin, float(meta["resolution"]))
+
+
+def read_image(path: Path) -> NDArray[np.uint8]:
+    """A greyscale map image: binary or ASCII PGM read here, anything else through OpenCV."""
+    data = path.read_bytes()
+    if data[:2] in (b"P5", b"P2"):
+        tokens: list[bytes] = []
+        pos = 2
+        while len(tokens) < 3:  # width, height, maxval; skipping comments
+            while data[pos : pos + 1].isspace():
+                pos += 1
+            if data[pos : pos + 1] == b"#":
+                pos = data.index(b"\n", pos) + 1
+                continue
+            end = pos
+            while not data[end : end + 1].isspace():
+                end += 1
+            tokens.append(data[pos:end])
+            pos = end
+        width, height, maxval = (int(t) for t in tokens)
+        pos += 1  # the single whitespace after maxval
+        if data[:2] == b"P5":
+            dtype = np.uint8 if maxval < 256 else np.dtype(">u2")
+            pixels = np.frombuffer(data, dtype=dtype, count=width * height, offset=pos)
+        else:
+            pixels = np.array(data[pos:].split()[: width * height], dtype=np.int64)
+        image = pixels.reshape(height, width).astype(np.float64) * (255.0 / maxval)
+        return np.round(image).astype(np.uint8)
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise ValueError(f"{path}: not an image")
+    return image
+
+
+def cell_centres(mask: NDArray[np.bool_], origin: ArrayLike, resolution: float) -> NDArray:
+    """World centres (N, 2) of the set cells of a ``[row, col]`` mask (row 0 the lowest y)."""
+    rows, cols = np.nonzero(mask)
+    origin = np.asarray(origin, dtype=np.float64)
+    return np.stack([origin[0] + (cols + 0.5) * resolution, origin[1] + (rows + 0.5) * resolution], axis=-1)
+
+
+class OccupancyGrid:
+    """Log-odds grid with growing bounds. ``logodds[row, col]`` float32, 0 = unknown."""
+
+    def __init__(self, config: OccupancyConfig | None = None):
+        self.config = config or OccupancyConfig()
+        self.resolution = self.config.resolution
+        self.logodds = np.zeros((0, 0), np.float32)
+        self.origin = np.zeros(2)
+        self._cell0 = np.zeros(2, np.int64)  # world cell index of logodds[0, 0]: [row, col]
+        self.keyframes = 0
+
+    @classmethod
+    def from_keyframes(
+        cls,
+        poses: ArrayLike,
+        scans: list[tuple[NDArray, NDArray]],
+        config: OccupancyConfig | None = None,
+    ) -> OccupancyGrid:
+        """A grid of keyframes (poses (K, 3) in the map frame; scans of (points, free_ranges))."""
+        grid = cls(config)
+        for pose, (points, ranges) in zip(np.asarray(poses), scans, strict=True):
+            grid.integrate(pose, points, ranges)
+        return grid
+
+    def _window(self, pose: NDArray) -> tuple[int, int, int]:
+        """Top-left global cell (row0, col0) and half side of the tracing window at ``pose``.
+
+        The sensor is snapped to the nearest cell corner (within 0.07 m): the shared tracer
+        starts rays at the window's central corner.
+        """
+        res = self.resolution
+        half = int(np.ceil(self.config.max_range / res)) + 2
+        corner_col = int(np.round(pose[0] / res))  # global corner index, world frame
+        corner_row = int(np.round(pose[1] / res))
+        return corner_row - half, corner_col - half, half
+
+    def _ensure(self, row0: int, col0: int, rows: int, cols: int) -> None:
+        """Grow the grid so that world cells [row0, row0+rows) x [col0, col0+cols) exist.
+
+        World cell (r, c) covers y in [r res, (r+1) res), x likewise: the grid's origin is always
+        a whole number of cells, so cells never shift when the bounds grow.
+        """
+        step = int(np.ceil(self.config.growth_step / self.resolution))
+        height, width = self.logodds.shape
+        if height == 0:
+            top, left = row0 - step, col0 - step
+            self.logodds = np.zeros((rows + 2 * step, cols + 2 * step), np.float32)
+            self._cell0 = np.array([top, left])
+            self.origin = self._cell0[::-1] * self.resolution
+            return
+        top, left = self._cell0
+        grow_down = max(0, top - row0)
+        grow_left = max(0, left - col0)
+        grow_up = max(0, (row0 + rows) - (top + height))
+        grow_right = max(0, (col0 + cols) - (left + width))
+        if grow_down or grow_left or grow_up or grow_right:
+            grow_down += step if grow_down else 0
+            grow_left += step if grow_left else 0
+            grow_up += step if grow_up else 0
+            grow_right += step if grow_right else 0
+            self.logodds = np.pad(self.logodds, ((grow_down, grow_up), (grow_left, grow_right)))
+            self._cell0 = np.array([top - grow_down, left - grow_left])
+            self.origin = self._cell0[::-1] * self.resolution
+
+    def integrate(self, pose: ArrayLike, points: ArrayLike, ranges: ArrayLike) -> None:
+        """Add one keyframe. pose: (3,) map frame; points: (M, 2) obstacle points and ranges:
+        (B,) free range per azimuth bin, both in the keyframe frame (see ``scan2d``)."""
+        pose = np.asarray(pose, dtype=np.float64)
+        res = self.resolution
+        row0, col0, half = self._window(pose)
+        size = 2 * half
+        window = np.zeros((size, size), np.uint8)
+        # obstacle cells
+        obstacles = se2.transform_points(pose, np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        cells = np.floor(obstacles / res).astype(np.int64) - [col0, row0]
+        inside = ((cells >= 0) & (cells < size)).all(axis=1)
+        window[cells[inside, 1], cells[inside, 0]] = OCCUPIED
+        # free rays, in continuous window-cell coordinates
+        ends = se2.transform_points(pose, free_endpoints(ranges)) / res - [col0, row0]
+        if len(ends):
+            trace_scan(
+                window,
+                np.ascontiguousarray(ends[:, 0]),
+                np.ascontiguousarray(ends[:, 1]),
+                float(half),
+                np.radians(self.config.max_gap_deg),
+                0.1,
+            )
+        self._ensure(row0, col0, size, size)
+        r = row0 - self._cell0[0]
+        c = col0 - self._cell0[1]
+        view = self.logodds[r : r + size, c : c + size]
+        update = np.where(
+            window == OCCUPIED,
+            np.float32(self.config.log_odds_hit),
+            np.where(window == FREE, np.float32(self.config.log_odds_miss), np.float32(0.0)),
+        )
+        view += update
+        np.clip(view, self.config.log_odds_min, self.config.log_odds_max, out=view)
+        self.keyframes += 1
+
+    def to_trinary(self) -> NDArray[np.uint8]:
+        """(H, W) uint8 UNKNOWN / FREE / OCCUPIED over the whole grid."""
+        cells = np.full(self.logodds.shape, UNKNOWN, np.uint8)
+        cells[self.logodds > _logit(self.config.occupied_prob)] = OCCUPIED
+        cells[self.logodds < _logit(self.config.free_prob)] = FREE
+        return cells
+
+    def to_map(self, crop: bool = True) -> GridMap:
+        """The trinary map, cropped to the bounding box of its known cells (plus one cell)."""
+        cells = self.to_trinary()
+        origin = self.origin.copy()
+        if crop and cells.size:
+            known = cells != UNKNOWN
+            rows = np.flatnonzero(known.any(axis=1))
+            cols = np.flatnonzero(known.any(axis=0))
+            if rows.size:
+                r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, cells.shape[0])
+                c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, cells.shape[1])
+                cells = np.ascontiguousarray(cells[r0:r1, c0:c1])
+                origin = (self._cell0[::-1] + [c0, r0]) * self.resolution
+        return GridMap(cells, origin, self.resolution)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the log-odds array and its origin."""
+        return int(self.logodds.nbytes + self.origin.nbytes)
+
+
+def wall_mask(free_mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The wall cells of a ground-truth raster: cells that are not free but touch free space
+    (8-neighbourhood)."""
+    free = free_mask.astype(np.uint8)
+    touching = cv2.dilate(free, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT) > 0
+    return touching & ~free_mask
+
+
+def map_quality(
+    occupied_mask: NDArray[np.bool_],
+    origin: ArrayLike,
+    res: float,
+    gt_wall_mask: NDArray[np.bool_],
+    gt_origin: ArrayLike,
+    gt_res: float,
+    tol: float = 0.2,
+) -> tuple[float, float]:
+    """(wall_recall, occupied_precision) of a map against ground truth.
+
+    wall_recall: share of GT wall cells with a mapped occupied cell within ``tol`` metres;
+    occupied_precision: share of mapped occupied cells within ``tol`` of a GT wall cell.
+    Distances are between cell centres; both masks are ``[row, col]`` with row 0 the lowest y.
+    A figure with nothing to count is NaN.
+    """
+    mapped = cell_centres(occupied_mask, origin, res)
+    walls = cell_centres(gt_wall_mask, gt_origin, gt_res)
+    if len(walls) == 0 or len(mapped) == 0:
+        recall = float("nan") if len(walls) == 0 else 0.0
+        precision = float("nan") if len(mapped) == 0 else 0.0
+        return recall, precision
+    to_mapped, _ = cKDTree(mapped).query(walls, distance_upper_bound=tol + 1e-9)
+    to_walls, _ = cKDTree(walls).query(mapped, distance_upper_bound=tol + 1e-9)
+    return float(np.isfinite(to_mapped).mean()), float(np.isfinite(to_walls).mean())

@@ -1,0 +1,79 @@
+"""Lidar odometry of the metric baseline (kiss-icp) against the synthetic lidar's true poses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_metric_synthetic import corridor_world, scan
+
+from baselines.metric_grid.odometry import (
+    LidarOdometry,
+    OdometryConfig,
+    se2_to_se3,
+    se3_to_se2,
+)
+from navtopo import geometry as se2
+
+
+@pytest.fixture(scope="module")
+def corridor_drive():
+    """True poses every 0.25 m along 20 m of a furnished corridor, and their scans."""
+    true = np.array([[x, 0.0, 0.0] for x in np.arange(1.0, 21.01, 0.25)])
+    world = corridor_world()
+    return true, [scan(world, pose) for pose in true]
+
+
+def _drive(odometry: LidarOdometry, true, scans, wheel) -> np.ndarray:
+    return np.array([odometry.update(s, w) for s, w in zip(scans, wheel, strict=True)])
+
+
+def test_lidar_odometry_on_a_corridor_drive_matches_the_true_displacement_within_1_percent(
+    corridor_drive,
+):
+    true, scans = corridor_drive
+    still = np.repeat(true[:1], len(true), axis=0)  # no wheel information at all
+    estimate = _drive(LidarOdometry(OdometryConfig(seed_with_wheel=False)), true, scans, still)
+    driven = se2.distance(true[0], true[-1])
+    assert abs(se2.distance(estimate[0], estimate[-1]) - driven) < 0.01 * driven
+    assert se2.distance(estimate[-1], true[-1]) < 0.01 * driven
+    assert abs(estimate[-1, 2]) < np.deg2rad(1.0)
+
+
+def test_lidar_corrects_a_wheel_odometry_that_over_reads_by_5_percent(corridor_drive):
+    true, scans = corridor_drive
+    wheel = true.copy()
+    wheel[:, 0] = true[0, 0] + 1.05 * (true[:, 0] - true[0, 0])
+    estimate = _drive(LidarOdometry(OdometryConfig(seed_with_wheel=True)), true, scans, wheel)
+    driven = se2.distance(true[0], true[-1])
+    assert se2.distance(estimate[-1], true[-1]) < 0.01 * driven
+    assert se2.distance(wheel[-1], true[-1]) > 0.04 * driven  # the seed alone was wrong
+
+
+def test_lidar_pose_is_reported_in_the_wheel_odometry_frame(corridor_drive):
+    """The first wheel pose anchors the lidar estimate: both sources share one frame."""
+    true, scans = corridor_drive
+    offset = np.array([2.0, -1.0, 0.5])
+    wheel = se2.compose(offset, se2.compose(se2.inverse(true[0]), true[:12]))
+    lidar = _drive(LidarOdometry(), true[:12], scans[:12], wheel)
+    assert np.allclose(lidar[0], offset)
+    assert se2.distance(lidar[-1], wheel[-1]) < 0.05
+    wheel_only = _drive(LidarOdometry(OdometryConfig(source="wheel")), true[:12], scans[:12], wheel)
+    assert np.allclose(wheel_only, wheel)
+    assert LidarOdometry(OdometryConfig(source="wheel")).nbytes == 0
+
+
+def test_a_scan_without_structure_keeps_the_predicted_motion(corridor_drive):
+    true, scans = corridor_drive
+    odometry = LidarOdometry()
+    odometry.update(scans[0], true[0])
+    floor_only = scans[1][scans[1][:, 2] == 0.0]
+    pose = odometry.update(floor_only, true[1])  # nothing to register: the wheel delta is kept
+    assert se2.distance(pose, true[1]) < 1e-6
+    assert odometry.nbytes > 0
+
+
+def test_se2_se3_round_trip():
+    pose = np.array([1.5, -2.0, 2.9])
+    assert np.allclose(se3_to_se2(se2_to_se3(pose)), pose)
+    with pytest.raises(ValueError):
+        OdometryConfig(source="imu")
