@@ -292,6 +292,58 @@ def config(system: Annotated[str | None, typer.Argument(help="a system name; all
     sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
 
 
+# ---------------------------------------------------------------------------------------------
+# place recognition
+
+
+@app.command("train-descriptor")
+def train_descriptor(
+    descriptor: Annotated[str, typer.Option(help="minkloc3d or polar_bev")] = "minkloc3d",
+    minutes: Annotated[float, typer.Option(help="training time budget", min=0.1)] = 15.0,
+    worlds: Annotated[int, typer.Option(help="generated training worlds (never the bundled scenarios)", min=1)] = 9,
+    threads: Annotated[int | None, typer.Option(help="torch threads (1 is fastest on a shared 2-core machine)")] = 1,
+    data_dir: Annotated[Path, typer.Option(help="cache of generated scans")] = Path("data/place_recognition"),
+    out: Annotated[Path | None, typer.Option(help="where the weights go (default: the package's shipped weights)")] = None,
+) -> None:
+    """Train a place-recognition descriptor on scans of generated corridor worlds."""
+    from navtopo.place_recognition import WEIGHTS_DIR, available_descriptors
+    from runners.place_recognition_data import train_descriptor as train
+
+    if descriptor not in available_descriptors() or descriptor == "scan_context":
+        fail(f"--descriptor: {descriptor!r} is not a learned descriptor (minkloc3d, polar_bev)")
+    summary = train(
+        descriptor, minutes, worlds, threads, data_dir, out or WEIGHTS_DIR, say=lambda m: console.print(m, highlight=False)
+    )
+    sys.stdout.write(json.dumps(summary, indent=2, default=str) + "\n")
+
+
+@app.command("eval-place-recognition")
+def eval_place_recognition(
+    scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")],
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON")] = False,
+    descriptors: Annotated[str, typer.Option(help="comma-separated descriptors")] = "minkloc3d,scan_context,polar_bev",
+    spacing: Annotated[float, typer.Option(help="a scan every this many metres of the route")] = 1.0,
+    min_gap: Annotated[float, typer.Option(help="query only scans at least this far back along the route (m)")] = 30.0,
+) -> None:
+    """Recall@1/@5 (3 m) of each descriptor: every route scan queried against earlier passes."""
+    import torch
+
+    from runners.place_recognition_data import evaluate_scenario
+
+    torch.set_num_threads(1)
+    names = [d.strip() for d in descriptors.split(",") if d.strip()]
+    results = evaluate_scenario(_load(scenario, with_trials=False), names, spacing_m=spacing, min_gap_m=min_gap)
+    if as_json:
+        sys.stdout.write(json.dumps(results, indent=2) + "\n")
+        return
+    table = Table(title=f"place recognition on {scenario} (3 m)")
+    for column in ("descriptor", "recall@1", "recall@5", "queries"):
+        table.add_column(column)
+    for name, r in results.items():
+        table.add_row(name, str(r.get("recall_at_1", r.get("error"))), str(r.get("recall_at_5", "")), str(r.get("queries", "")))
+    console.print(table)
+
+
 def main() -> None:
     app()
 

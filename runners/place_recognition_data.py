@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from numpy.typing import NDArray
 
 from navtopo.place_recognition import (
@@ -195,20 +196,36 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.eval:
         if args.threads:
-            import torch
-
             torch.set_num_threads(args.threads)
         names = ["scan_context", "minkloc3d", "polar_bev"]
         print(json.dumps(evaluate_scenario(load_scenario(args.eval, with_trials=False), names), indent=2))
         return
 
-    say = print
-    train_config = ScanDataConfig(worlds=args.worlds)
+    print(
+        json.dumps(
+            train_descriptor(args.descriptor, args.minutes, args.worlds, args.threads, args.data_dir, args.out),
+            indent=2,
+            default=str,
+        )
+    )
+
+
+def train_descriptor(
+    descriptor: str = "minkloc3d",
+    minutes: float = 15.0,
+    worlds: int = 9,
+    threads: int | None = None,
+    data_dir: Path = Path("data/place_recognition"),
+    out: Path = WEIGHTS_DIR,
+    say: Callable[[str], None] = print,
+) -> dict:
+    """Generate (or reuse cached) scans of generated worlds, train, write the weights; the summary."""
+    train_config = ScanDataConfig(worlds=worlds)
     held_out = ScanDataConfig(worlds=1, seed=9000, yaw_jitter_deg=180.0, spacing_m=1.0)
-    args.data_dir.mkdir(parents=True, exist_ok=True)
-    scans = cached_scans(args.data_dir / f"train_{args.worlds}.npz", train_config, say)
-    validation = cached_scans(args.data_dir / "held_out.npz", held_out, say)
-    say(f"training scans: {len(scans)} from {args.worlds} worlds; held out: {len(validation)}")
+    data_dir.mkdir(parents=True, exist_ok=True)
+    scans = cached_scans(data_dir / f"train_{worlds}.npz", train_config, say)
+    validation = cached_scans(data_dir / "held_out.npz", held_out, say)
+    say(f"training scans: {len(scans)} from {worlds} worlds; held out: {len(validation)}")
 
     last = [0.0]
 
@@ -218,17 +235,17 @@ def main(argv: list[str] | None = None) -> None:
             say(f"step {p.step}  {p.elapsed_s / 60:.1f} min  loss {p.loss:.3f}  active {p.active_fraction:.2f}  lr {p.lr:.1e}")
 
     config = TrainingConfig(
-        descriptor=args.descriptor,
-        max_seconds=args.minutes * 60.0,
-        threads=args.threads,
-        output_dir=str(args.out),
+        descriptor=descriptor,
+        max_seconds=minutes * 60.0,
+        threads=threads,
+        output_dir=str(out),
     )
     metrics = train(scans, config, progress=report, validation=validation)
     metrics["data"] = {"train": asdict(train_config), "held_out": asdict(held_out)}
     Path(metrics["stats_path"]).write_text(json.dumps(metrics, indent=2, default=str) + "\n")
     summary = {k: metrics[k] for k in ("steps", "epochs", "seconds", "ms_per_step", "loss_last")}
-    say(json.dumps({**summary, "validation": metrics.get("validation")}, indent=2))
-    make_descriptor(args.descriptor, weights=metrics["weights_path"])  # loads back
+    make_descriptor(descriptor, weights=metrics["weights_path"])  # loads back
+    return {**summary, "validation": metrics.get("validation"), "weights": metrics["weights_path"]}
 
 
 if __name__ == "__main__":
