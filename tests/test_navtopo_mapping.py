@@ -11,6 +11,8 @@ import yaml
 from navtopo import geometry as se2
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.graph import TopologicalGraph
+from navtopo.local_grid import grid_from_points
+from navtopo.scan_matching import prepare
 from navtopo.system import NavTopo, NavTopoConfig
 from navtopo.types import Command
 from runners.sim import Simulator
@@ -117,3 +119,33 @@ def test_saved_graph_loads_for_navigation_with_the_same_bytes(scenario, tmp_path
     assert loaded.graph.nbytes == system.graph.nbytes and len(loaded.graph) == len(system.graph)
     assert not loaded.maintainer.mapping
     assert TopologicalGraph.load(tmp_path / "map")[1]["navtopo_config"]["descriptor"] == "scan_context"
+
+
+def test_global_localization_finds_the_location_and_the_pose_without_a_prior(scenario):
+    """Map the corridor, then drop the robot anywhere along it facing anywhere: top-k place
+    recognition plus scan matching puts it in a location, at its true pose."""
+    system = NavTopo.create(config())
+    true_at = {}
+    with Simulator(scenario) as sim:
+        sim.reset([0.0, 0.0, 0.0])
+        follower = PathFollower(FollowerConfig())
+        follower.set_path(np.array([[0.0, 0.0], [20.0, 0.0]]))
+        while not follower.reached:
+            obs = sim.observe()
+            true_at[obs.stamp] = sim.true_pose
+            system.observe(obs)
+            sim.step(follower.command(sim.true_pose))
+        vertex_truth = [true_at[v.stamp] for v in system.graph.vertices]
+        localizer = system.maintainer.localizer
+        located = 0
+        for truth in ([1.0, 0.5, 2.5], [9.0, -0.3, -1.0], [15.5, 0.2, 3.0], [20.5, -0.5, 0.4]):
+            points = sim.scan(np.array(truth))
+            query = prepare(grid_from_points(points, system.config.grid), system.config.grid, system.config.matching)
+            found = localizer.localize(query, system.descriptor.embed(points))
+            if not found:
+                continue
+            estimate = se2.compose(vertex_truth[found[0].vertex], found[0].pose)
+            assert se2.distance(estimate, truth) < 0.2  # never a wrong place
+            assert abs(se2.wrap_angle(estimate[2] - truth[2])) < np.radians(3)
+            located += 1
+    assert located >= 3
