@@ -44,7 +44,9 @@ def _load(name: str, with_trials: bool = True):
 
 @app.command()
 def run(
-    scenarios: Annotated[list[str], typer.Argument(help="bundled scenario names or YAML files")],
+    scenarios: Annotated[
+        list[str] | None, typer.Argument(help="bundled scenario names or YAML files (with --resume: the run's own)")
+    ] = None,
     systems: Annotated[str, typer.Option(help="comma-separated systems (see `config`)")] = "navtopo,metric_grid,oracle",
     trials: Annotated[int | None, typer.Option(help="run the first N trials (0: mapping only)", min=0)] = None,
     seed: Annotated[int | None, typer.Option(help="seed of sensor and odometry noise (default: the scenario's)")] = None,
@@ -52,7 +54,7 @@ def run(
     out: Annotated[Path | None, typer.Option(help="results folder (default results/<scenario>/<run-id>)")] = None,
     resume: Annotated[Path | None, typer.Option(help="finish an interrupted run folder")] = None,
     workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
-    executor: Annotated[str, typer.Option(help="local or ray")] = "local",
+    executor: Annotated[str, typer.Option(help="where trials run: local (fresh processes) or ray")] = "local",
     ray_address: Annotated[str | None, typer.Option(help="address of a running Ray cluster")] = None,
     results: Annotated[Path, typer.Option(help="root of the results folders")] = Path("results"),
     config_file: Annotated[
@@ -60,9 +62,14 @@ def run(
     ] = None,
 ) -> None:
     """Map each scenario's route with every system, then run the navigation trials."""
-    from runners.run import RunOptions, execute
+    from runners.executors import ExecutorUnavailable, check_executor
+    from runners.run import RunOptions, execute, scenario_fingerprint
     from runners.systems import registry
 
+    try:
+        check_executor(executor)
+    except ExecutorUnavailable as exc:
+        fail(str(exc))
     known = registry()
     names = [s.strip() for s in systems.split(",") if s.strip()]
     unknown = [s for s in names if s not in known]
@@ -74,8 +81,38 @@ def run(
             seed_list = [int(s) for s in seeds.split(",") if s.strip()]
         except ValueError:
             fail(f"--seeds: not a list of integers: {seeds!r}")
-    if resume is not None and not (resume / "manifest.json").is_file():
-        fail(f"{resume}: not a run folder (manifest.json missing)")
+    scenarios = list(scenarios or [])
+    if resume is not None:
+        if not (resume / "manifest.json").is_file():
+            fail(f"{resume}: not a run folder (manifest.json missing)")
+        if len(seed_list) > 1 or len(scenarios) > 1:
+            fail("--resume finishes one run folder: give at most its scenario and no --seeds")
+        manifest = json.loads((resume / "manifest.json").read_text())
+        stored = manifest["scenario"]
+        if scenarios and scenarios[0] not in (stored["name"], stored["file"]):
+            fail(f"{resume}: holds a run of {stored['name']!r}, not {scenarios[0]!r}")
+        scenario = _load(stored["file"])
+        if manifest.get("scenario_sha256") not in (None, scenario_fingerprint(scenario)):
+            fail(f"{stored['file']}: changed since the run started (sha256 differs from {resume}/manifest.json)")
+        ignored = [
+            flag
+            for flag, value in (
+                ("--systems", systems != "navtopo,metric_grid,oracle"),
+                ("--trials", trials is not None),
+                ("--seed", seed is not None),
+                ("--config", config_file is not None),
+            )
+            if value
+        ]
+        if ignored:
+            err.print(f"note: {', '.join(ignored)} ignored with --resume (the run's manifest decides)", highlight=False)
+        options = RunOptions(
+            systems=manifest["systems"], resume=resume, workers=workers, executor=executor, ray_address=ray_address
+        )
+        _run_one(scenario, options, execute)
+        return
+    if not scenarios:
+        fail("give at least one SCENARIO (see `navtopo-bench scenario list`)")
     if out is not None and resume is None and (out / "manifest.json").exists():
         fail(f"{out}: already holds a run; use --resume {out} to finish it, or another --out")
     if out is not None and (len(scenarios) > 1 or len(seed_list) > 1):
@@ -133,8 +170,8 @@ def _run_one(scenario, options, execute) -> None:
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
     with Progress(*columns, console=console, transient=False) as progress:
         mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
-        total_trials = 0
         trial_task = None
+        run_folder: list[Path] = []
 
         logged_tenths = [-1]
 
@@ -145,12 +182,13 @@ def _run_one(scenario, options, execute) -> None:
                 logged_tenths[0] = tenth
                 progress.console.print(f"  mapping {scenario.name}: {travelled:.0f} / {total:.0f} m", highlight=False)
 
-        def on_stage(message: str) -> None:
-            nonlocal trial_task, total_trials
-            if message.startswith("navigation"):
-                total_trials = int(message.split(":")[1].split()[0])
+        def on_stage(stage: str, value) -> None:
+            nonlocal trial_task
+            if stage == "run_dir":
+                run_folder.append(value)
+            elif stage == "navigation":
                 progress.update(mapping_task, completed=round(scenario.route_length_m))
-                trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=total_trials)
+                trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=value)
 
         def on_trial(record: dict) -> None:
             if trial_task is not None:
@@ -168,20 +206,22 @@ def _run_one(scenario, options, execute) -> None:
         except ExecutorUnavailable as exc:
             fail(str(exc))
         except KeyboardInterrupt:
-            fail("interrupted; finish the run with --resume <run folder>", code=130)
-        except Exception as exc:  # one line for the user, the traceback in the log
+            where = f" --resume {run_folder[0]}" if run_folder else ""
+            fail(f"interrupted{'; finish the run with' + where if where else ''}", code=130)
+        except Exception as exc:  # one line for the user, the traceback in the run's log
             import traceback
 
-            log = Path("navtopo-bench-error.log").resolve()
-            log.write_text(traceback.format_exc())
-            fail(
-                f"run of {scenario.name} failed: {type(exc).__name__}: {exc} (traceback in {log}; --resume continues)".replace(
-                    "\n", " "
-                ),
-                code=1,
-            )
+            message = f"run of {scenario.name} failed: {type(exc).__name__}: {exc}".replace("\n", " ")
+            if run_folder:
+                log = run_folder[0] / "logs" / "error.log"
+                log.parent.mkdir(parents=True, exist_ok=True)
+                log.write_text(traceback.format_exc())
+                message += f" (traceback in {log})"
+            fail(message, code=1)
     print_summary(run_dir.root)
     console.print(f"results: [bold]{run_dir.root}[/]")
+    if run_dir.incomplete:
+        fail(f"{len(run_dir.incomplete)} trial(s) left unrun after a worker died; finish with --resume {run_dir.root}", code=1)
 
 
 def print_summary(run_dir: Path) -> None:

@@ -18,11 +18,18 @@ from pydantic import BaseModel
 from navtopo.follower import FollowerConfig, PathFollower
 from runners.metrics import edge_errors, stats_ms
 from runners.results import RunDir, disk_bytes, write_json
-from runners.sim import Simulator
+from runners.sim import MAPPING_STREAM, Simulator
 from runners.systems import GroundTruth, SystemContext, SystemEntry
 from scenarios import Scenario
 
 GROWTH_EVERY_M = 10.0
+STUCK_S = 60.0  # no progress along the route for this long (simulated time) stops mapping
+
+
+class RouteError(RuntimeError):
+    """The mapping route cannot be driven (a property of the scenario: resuming will not help)."""
+
+
 ROUTE_GOAL_TOLERANCE_M = 0.3
 
 
@@ -52,7 +59,7 @@ def run_mapping(
     robot = scenario.spec.robot
     sim = Simulator(scenario, seed=seed)
     try:
-        sim.reset(scenario.route_start)
+        sim.reset(scenario.route_start, stream=(MAPPING_STREAM,))
         instances = {s.entry.name: s.entry.create(s.config, context_for(s.entry, scenario, sim)) for s in systems}
         follower = PathFollower(
             FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M)
@@ -64,34 +71,62 @@ def run_mapping(
         growth: dict[str, list[list[float]]] = {name: [] for name in instances}
         true_at_stamp: dict[float, np.ndarray] = {}
         travelled_at_stamp: dict[float, float] = {}
+        failures: dict[str, str] = {}  # a system that raised stops observing; the others go on
+
+        def guarded(name: str, call: Callable[[], Any]) -> Any:
+            try:
+                return call()
+            except Exception as exc:  # noqa: BLE001 - recorded as that system's mapping failure
+                failures[name] = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+                return None
+
         next_growth = 0.0
         scans = 0
+        progress_mark, progress_time = -1.0, 0.0
         for _ in range(max_ticks):
             obs = sim.observe()
             true_at_stamp[obs.stamp] = sim.true_pose
             travelled_at_stamp[obs.stamp] = sim.travelled_m
             scans += 1
             for name, system in instances.items():
+                if name in failures:
+                    continue
                 t0 = time.perf_counter()
-                system.observe(obs)
+                guarded(name, lambda system=system, obs=obs: system.observe(obs))
                 observe_ms[name].append((time.perf_counter() - t0) * 1e3)
             if sim.travelled_m >= next_growth:
                 for name, system in instances.items():
-                    growth[name].append([round(sim.travelled_m, 2), int(system.mapping_stats().get("map_bytes", 0))])
+                    if name not in failures:
+                        growth[name].append([round(sim.travelled_m, 2), int(system.mapping_stats().get("map_bytes", 0))])
                 next_growth += GROWTH_EVERY_M
             if progress is not None:
                 progress(sim.travelled_m, route_length)
             command = follower.command(sim.true_pose)
             if follower.reached:
                 break
+            if follower.progress > progress_mark + 0.1:
+                progress_mark, progress_time = follower.progress, sim.time
+            elif sim.time - progress_time > STUCK_S:
+                x, y = sim.true_pose[:2]
+                raise RouteError(
+                    f"the mapping route is blocked at ({x:.2f}, {y:.2f}), {follower.progress:.1f} m along it "
+                    f"({sim.collisions} collisions): it passes too close to walls or obstacles for the robot"
+                )
             sim.step(command)
         else:
-            raise RuntimeError(f"mapping route not completed within {max_ticks} ticks")
+            raise RouteError(f"mapping route not completed within {max_ticks} ticks")
         reports: dict[str, dict[str, Any]] = {}
         for name, system in instances.items():
-            system.finish_mapping()
             map_dir = run.map_dir(name)
-            system.save(map_dir)
+            if name not in failures:
+                guarded(name, system.finish_mapping)
+            if name not in failures:
+                guarded(name, lambda system=system, map_dir=map_dir: system.save(map_dir))
+            if name in failures:
+                report = {"error": failures[name], "scans": scans, "map_bytes": None, "map_disk_bytes": None}
+                write_json(run.mapping_path(name), report)
+                reports[name] = report
+                continue
             stats = dict(system.mapping_stats())
             growth[name].append([round(sim.travelled_m, 2), int(stats.get("map_bytes", 0))])
             report: dict[str, Any] = {

@@ -105,3 +105,47 @@ def edge_errors(edges: list[tuple[float, float, list[float]]], true_pose_at: dic
         return {"median": round(float(np.median(v)), 4) if v else None, "max": round(float(np.max(v)), 4) if v else None}
 
     return {"translation_m": two(translation), "rotation_deg": two(rotation), "count": len(translation)}
+
+
+def trial_record(
+    system: str,
+    index: int,
+    trial: Any,
+    seed: int,
+    *,
+    success: bool,
+    reason: str,
+    travelled_m: float = 0.0,
+    final_distance_m: float | None = None,
+    collisions: int = 0,
+    sim_time_s: float = 0.0,
+    compute_s: float = 0.0,
+    planning_ms: list[float] | None = None,
+) -> dict[str, Any]:
+    """One line of trials.jsonl (the contract's keys, plus planning samples and extras)."""
+    eff = efficiency(trial.shortest_m, travelled_m) if success else None
+    to_goal = None
+    if success and final_distance_m is not None:
+        # the capped figure hides a robot that stops up to goal_tolerance short; this one does not
+        to_goal = efficiency(trial.shortest_m, travelled_m + final_distance_m)
+    samples = list(planning_ms or [])
+    return {
+        "system": system,
+        "trial": index,
+        "success": bool(success),
+        "reason": reason,
+        "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
+        "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
+        "shortest_m": round(trial.shortest_m, 4),
+        "travelled_m": round(travelled_m, 4),
+        "efficiency": round(eff, 6) if eff is not None else None,
+        "spl": round(eff, 6) if eff is not None else 0.0,
+        "efficiency_to_goal": round(to_goal, 6) if to_goal is not None else None,
+        "collisions": int(collisions),
+        "sim_time_s": round(sim_time_s, 3),
+        "compute_s": round(compute_s, 4),
+        "planning_ms": stats_ms(samples),
+        "planning_ms_samples": [round(v, 4) for v in samples],
+        "final_distance_m": round(final_distance_m, 4) if final_distance_m is not None else None,
+        "seed": seed,
+    }

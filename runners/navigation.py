@@ -10,7 +10,6 @@ run loses no finished trial) when it shares the run folder, and returns the reco
 
 from __future__ import annotations
 
-import fcntl
 import gc
 import json
 import time
@@ -24,9 +23,9 @@ import psutil
 
 from navtopo import geometry as se2
 from runners.mapping import context_for
-from runners.metrics import GOAL_TOLERANCE_M, STUCK_DISTANCE_M, STUCK_WINDOW_S, efficiency, stats_ms, timeout_s, trajectory_length
-from runners.results import RunDir, write_json, write_tum
-from runners.sim import Simulator
+from runners.metrics import GOAL_TOLERANCE_M, STUCK_DISTANCE_M, STUCK_WINDOW_S, timeout_s, trajectory_length, trial_record
+from runners.results import RunDir, disk_bytes, write_json, write_tum
+from runners.sim import TRIAL_STREAM, Simulator
 from runners.systems import Status, get_system
 from scenarios import Scenario, load_scenario
 
@@ -46,16 +45,6 @@ class TrialJob:
 
 def _rss() -> int:
     return int(psutil.Process().memory_info().rss)
-
-
-def _append_locked(run: RunDir, record: dict[str, Any]) -> None:
-    run.root.mkdir(parents=True, exist_ok=True)
-    with open(run.root / ".trials.lock", "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        try:
-            run.append_trial(record)
-        finally:
-            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def run_trial_job(job: TrialJob) -> dict[str, Any]:
@@ -84,7 +73,7 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
                 write_tum(run.trajectory_path(job.system, index), rows)
                 if estimate is not None and len(estimate):
                     write_tum(run.trajectory_path(job.system, index, estimate=True), estimate)
-                _append_locked(run, record)
+                run.append_trial(record)
         stats = system.stats()
         memory = {
             "map_bytes": int(stats.get("map_bytes", 0)),
@@ -94,7 +83,7 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
         if run is not None and job.measure_memory:
             write_json(
                 run.root / "navigation" / f"{job.system}.json",
-                {**memory, "disk_bytes": sum(p.stat().st_size for p in Path(job.map_dir).rglob("*") if p.is_file())},
+                {**memory, "disk_bytes": disk_bytes(Path(job.map_dir))},
             )
     finally:
         sim.close()
@@ -104,7 +93,7 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
 def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, index: int, seed: int, first_plan_rss: list[int]):
     robot = scenario.spec.robot
     world_from_map = scenario.route_start
-    sim.reset(trial.start)
+    sim.reset(trial.start, stream=(TRIAL_STREAM, index))
     limit = timeout_s(trial.shortest_m, robot.max_linear)
     reason = ""
     success = False
@@ -124,7 +113,7 @@ def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, inde
             t0 = time.perf_counter()
             command = system.step(obs)
             compute_s += time.perf_counter() - t0
-            if not first_plan_rss and system.stats().get("planning_ms"):
+            if not first_plan_rss and system.stats().get("planning_ms"):  # checked only until the first plan
                 first_plan_rss.append(_rss())
             estimate = getattr(system, "pose_estimate", lambda: None)()
             if estimate is not None:
@@ -155,26 +144,19 @@ def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, inde
         reason = f"error: {type(exc).__name__}: {exc}".splitlines()[0][:300]
         traceback.print_exc()
     rows = sim.trajectory_array()
-    travelled = trajectory_length(rows)
-    eff = efficiency(trial.shortest_m, travelled) if success else None
-    record = {
-        "system": entry.name,
-        "trial": index,
-        "success": bool(success),
-        "reason": reason,
-        "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
-        "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
-        "shortest_m": round(trial.shortest_m, 4),
-        "travelled_m": round(travelled, 4),
-        "efficiency": round(eff, 6) if eff is not None else None,
-        "spl": round(eff, 6) if eff is not None else 0.0,
-        "collisions": int(sim.collisions),
-        "sim_time_s": round(sim.time, 3),
-        "compute_s": round(compute_s, 4),
-        "planning_ms": stats_ms(planning_ms),
-        "planning_ms_samples": [round(v, 4) for v in planning_ms],
-        "final_distance_m": round(float(np.hypot(*(sim.true_pose[:2] - trial.goal))), 4),
-        "seed": seed,
-    }
+    record = trial_record(
+        entry.name,
+        index,
+        trial,
+        seed,
+        success=success,
+        reason=reason,
+        travelled_m=trajectory_length(rows),
+        final_distance_m=float(np.hypot(*(sim.true_pose[:2] - trial.goal))),
+        collisions=sim.collisions,
+        sim_time_s=sim.time,
+        compute_s=compute_s,
+        planning_ms=planning_ms,
+    )
     json.dumps(record, allow_nan=False)  # fail here, not in the writer, if a NaN slipped in
     return record, rows, np.asarray(estimate_rows) if estimate_rows else None

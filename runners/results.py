@@ -7,6 +7,7 @@ flushed line per finished trial; a torn last line (a crash mid-write) is ignored
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import tempfile
@@ -22,12 +23,21 @@ def write_json(path: Path, data: Any) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, allow_nan=False)
+            json.dump(data, f, indent=2, allow_nan=False, default=_plain)
             f.write("\n")
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays as plain JSON values."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
 def read_json(path: Path) -> Any:
@@ -54,6 +64,7 @@ class RunDir:
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
+        self.incomplete: list[tuple[str, int]] = []  # (system, trial) left unrun by a dead worker
 
     @property
     def manifest_path(self) -> Path:
@@ -77,12 +88,18 @@ class RunDir:
         return self.root / "trajectories" / system / f"trial-{trial}{'.est' if estimate else ''}.tum"
 
     def append_trial(self, record: dict[str, Any]) -> None:
+        """Append one record as one flushed line, under a lock shared by every writer process."""
         self.root.mkdir(parents=True, exist_ok=True)
         line = json.dumps(record, allow_nan=False)
-        with open(self.trials_path, "a") as f:
-            f.write(line + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        with open(self.root / ".trials.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            try:
+                with open(self.trials_path, "a") as f:
+                    f.write(line + "\n")
+                    f.flush()
+                    os.fsync(f.fileno())
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
 
     def read_trials(self) -> list[dict[str, Any]]:
         """Finished trials, first record of each (system, trial); torn lines skipped."""
@@ -117,6 +134,35 @@ class RunDir:
             tmp = self.trials_path.with_name(".trials.jsonl.tmp")
             tmp.write_text(keep)
             os.replace(tmp, self.trials_path)
+
+
+class TrialsTail:
+    """Follows trials.jsonl: the complete records appended since the last call."""
+
+    def __init__(self, run: RunDir, skip: set[tuple[str, int]] | None = None) -> None:
+        self.path = run.trials_path
+        self.offset = self.path.stat().st_size if self.path.is_file() else 0
+        self.skip = set(skip or ())
+
+    def new_records(self) -> list[dict[str, Any]]:
+        if not self.path.is_file():
+            return []
+        with open(self.path) as f:
+            f.seek(self.offset)
+            text = f.read()
+        end = text.rfind("\n") + 1  # only whole lines; a line being written waits for the next call
+        self.offset += len(text[:end].encode())
+        records = []
+        for line in text[:end].splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            key = (record.get("system"), record.get("trial"))
+            if key not in self.skip:
+                self.skip.add(key)
+                records.append(record)
+        return records
 
 
 def disk_bytes(directory: Path) -> int:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import datetime as dt
+import hashlib
 import os
 import platform
 import socket
 import subprocess
 from collections.abc import Callable
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -17,9 +19,9 @@ import psutil
 
 from runners.executors import run_jobs
 from runners.mapping import MappingSystem, run_mapping
-from runners.metrics import summarize
+from runners.metrics import summarize, trial_record
 from runners.navigation import TrialJob, run_trial_job
-from runners.results import RunDir, point_latest, read_json, write_json
+from runners.results import RunDir, TrialsTail, point_latest, read_json, write_json
 from runners.systems import get_system
 from scenarios import Scenario
 
@@ -52,6 +54,20 @@ def git_revision() -> str | None:
         return rev.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return None
+
+
+def scenario_fingerprint(scenario: Scenario) -> str:
+    """sha256 of the scenario file and of the map files it reads: what a resume must find unchanged."""
+    digest = hashlib.sha256(scenario.path.read_bytes())
+    if scenario.spec.world.map is not None:
+        map_yaml = scenario.path.parent / scenario.spec.world.map.yaml
+        digest.update(map_yaml.read_bytes())
+        for line in map_yaml.read_text().splitlines():
+            if line.strip().startswith("image:"):
+                image = map_yaml.parent / line.split(":", 1)[1].strip()
+                if image.is_file():
+                    digest.update(image.read_bytes())
+    return digest.hexdigest()
 
 
 def versions() -> dict[str, str | None]:
@@ -108,10 +124,13 @@ def execute(
     options: RunOptions,
     on_mapping: Callable[[float, float], None] | None = None,
     on_trial: Callable[[dict[str, Any]], None] | None = None,
-    on_stage: Callable[[str], None] | None = None,
+    on_stage: Callable[[str, Any], None] | None = None,
 ) -> RunDir:
-    """Run (or resume) one run of one scenario with one seed; returns its folder."""
-    say = on_stage or (lambda _m: None)
+    """Run (or resume) one run of one scenario with one seed; returns its folder.
+
+    on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count).
+    """
+    say = on_stage or (lambda _stage, _value: None)
     if options.resume is not None:
         run = RunDir(options.resume)
         manifest = read_json(run.manifest_path)
@@ -130,6 +149,7 @@ def execute(
             run.manifest_path,
             {
                 "scenario": {**scenario.summary(), "file": str(scenario.path.resolve())},
+                "scenario_sha256": scenario_fingerprint(scenario),
                 "systems": systems,
                 "seed": seed,
                 "trial_count": trial_count,
@@ -142,12 +162,13 @@ def execute(
         )
         if options.out is None:
             point_latest(run.root)
+    say("run_dir", run.root)
     entries = {name: get_system(name) for name in systems}
 
     # stage 1: mapping (skipped for systems whose map and report are already there)
     todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
     if todo:
-        say(f"mapping: {', '.join(todo)}")
+        say("mapping", todo)
         run_mapping(
             scenario,
             [MappingSystem(entries[n], entries[n].config_model.model_validate(configs[n])) for n in todo],
@@ -157,9 +178,16 @@ def execute(
         )
     mapping = {name: read_json(run.mapping_path(name)) for name in systems}
 
-    # stage 2: navigation
+    # stage 2: navigation (a system whose mapping failed fails its trials with that reason)
     run.repair_trials()
     done = {(r["system"], r["trial"]) for r in run.read_trials()}
+    for name in systems:
+        if "error" in mapping[name]:
+            for i in range(trial_count or 0):
+                if (name, i) not in done:
+                    reason = f"error: mapping failed: {mapping[name]['error']}"[:300]
+                    run.append_trial(trial_record(name, i, scenario.trials[i], seed, success=False, reason=reason))
+                    done.add((name, i))
     jobs = []
     for name in systems:
         pending = [i for i in range(trial_count or 0) if (name, i) not in done]
@@ -179,49 +207,39 @@ def execute(
                     measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
                 )
             )
+    run.incomplete = []
     if jobs:
-        say(f"navigation: {sum(len(j.trials) for j in jobs)} trials in {len(jobs)} worker job(s)")
-        for job, result, error in run_jobs(run_trial_job, jobs, options.workers, options.executor, options.ray_address):
-            if error is not None:
-                # the whole worker failed (e.g. its map would not load): every trial of it fails with the reason
-                reason = f"error: {type(error).__name__}: {error}".splitlines()[0][:300]
-                for index in job.trials:
-                    trial = scenario.trials[index]
-                    record = failed_record(job.system, index, trial, reason, seed)
-                    run.append_trial(record)
-                    if on_trial:
-                        on_trial(record)
-            elif on_trial:
-                for record in result["records"]:
+        say("navigation", sum(len(j.trials) for j in jobs))
+        tail = TrialsTail(run, skip=done)
+
+        def poll() -> None:
+            for record in tail.new_records():
+                if on_trial:
                     on_trial(record)
+
+        for job, _result, error in run_jobs(
+            run_trial_job, jobs, options.workers, options.executor, options.ray_address, on_poll=poll
+        ):
+            poll()
+            if error is None:
+                continue
+            recorded = {r["trial"] for r in run.read_trials() if r["system"] == job.system}
+            unrun = [i for i in job.trials if i not in recorded]
+            if isinstance(error, BrokenProcessPool):
+                # the worker died (killed, out of memory) inside the first unrecorded trial: that
+                # trial fails with the reason; the others stay unrun for --resume
+                failed, left = unrun[:1], unrun[1:]
+                reason = "error: worker process died"
+            else:
+                # the worker raised before its trials (e.g. its map would not load): all of them fail
+                failed, left = unrun, []
+                reason = f"error: {type(error).__name__}: {error}".splitlines()[0][:300]
+            for index in failed:
+                run.append_trial(trial_record(job.system, index, scenario.trials[index], seed, success=False, reason=reason))
+            run.incomplete.extend((job.system, i) for i in left)
+            poll()
     write_summary(run, systems, mapping)
     return run
-
-
-def failed_record(system: str, index: int, trial, reason: str, seed: int) -> dict[str, Any]:
-    import numpy as np
-
-    from runners.metrics import stats_ms
-
-    return {
-        "system": system,
-        "trial": index,
-        "success": False,
-        "reason": reason,
-        "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
-        "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
-        "shortest_m": round(trial.shortest_m, 4),
-        "travelled_m": 0.0,
-        "efficiency": None,
-        "spl": 0.0,
-        "collisions": 0,
-        "sim_time_s": 0.0,
-        "compute_s": 0.0,
-        "planning_ms": stats_ms([]),
-        "planning_ms_samples": [],
-        "final_distance_m": None,
-        "seed": seed,
-    }
 
 
 def write_summary(run: RunDir, systems: list[str], mapping: dict[str, dict]) -> dict[str, Any]:

@@ -37,6 +37,8 @@ MAX_RAYS_PER_CALL = 16383  # rayTestBatch refuses more (FACTS.md)
 FLOOR_MARGIN_M = 5.0
 ROBOT_FLOOR_GAP_M = 0.01
 WORLD_GROUP, ROBOT_GROUP = 1, 2  # collision filter groups: rays see the world only
+NOISE_SALT = 0x5E75  # keeps noise streams apart from the scenario's own seeded choices
+MAPPING_STREAM, TRIAL_STREAM = 1, 2
 
 
 def _quad(a: NDArray, b: NDArray, z0: float, z1: float) -> tuple[NDArray, NDArray]:
@@ -110,7 +112,8 @@ class Simulator:
         self.robot_spec = scenario.spec.robot
         self.sensor = scenario.spec.sensor
         self.noise = scenario.spec.odometry.noise
-        self.rng = np.random.default_rng(seed)
+        self.seed = int(seed)
+        self.rng = np.random.default_rng([self.seed, NOISE_SALT])
         self.client = pb.connect(pb.DIRECT)
         pb.setPhysicsEngineParameter(numSolverIterations=1, physicsClientId=self.client)
         vertices, faces = world_mesh(scenario)
@@ -141,8 +144,14 @@ class Simulator:
 
     # -- state ---------------------------------------------------------------------------------
 
-    def reset(self, pose: NDArray | list[float], time: float = 0.0) -> None:
-        """Place the robot (scenario frame); the odometry frame restarts at this pose."""
+    def reset(self, pose: NDArray | list[float], time: float = 0.0, stream: tuple[int, ...] = (0,)) -> None:
+        """Place the robot (scenario frame); the odometry frame restarts at this pose.
+
+        stream: which noise stream the run draws from, e.g. ``(MAPPING,)`` or ``(TRIAL, index)``:
+        sensor and odometry noise depend only on (seed, stream), not on what ran before in this
+        process, so a trial's noise is the same with any number of workers and on resume.
+        """
+        self.rng = np.random.default_rng([self.seed, NOISE_SALT, *stream])
         self._pose = np.asarray(pose, dtype=np.float64).copy()
         self._start = self._pose.copy()
         self._odom = np.zeros(3)
@@ -237,7 +246,7 @@ class Simulator:
         dt = duration / substeps
         collided = False
         travelled = 0.0
-        for _ in range(substeps):
+        for substep in range(substeps):
             target = self._integrate(self._pose, linear, angular, dt)
             if linear != 0.0 and self.collides(target):
                 collided = True
@@ -255,7 +264,7 @@ class Simulator:
             if collided:
                 self.collisions += 1
                 # the rest of the period passes with the robot standing at contact
-                remaining = duration - dt * (_ + 1)
+                remaining = duration - dt * (substep + 1)
                 if remaining > 1e-9:
                     self.time += remaining
                     self.trajectory.append((self.time, *self._pose))

@@ -43,11 +43,23 @@ def shortest_path(world: World, passable: NDArray[np.bool_], start_xy: NDArray, 
     return np.vstack([np.asarray(start_xy, float)[None, :2], inner, np.asarray(goal_xy, float)[None, :2]])
 
 
-def waypoint_route(world: World, passable: NDArray[np.bool_], waypoints: NDArray) -> tuple[NDArray[np.float64] | None, int]:
-    """Join waypoints by shortest paths; returns (route, -1) or (None, index of the unreachable waypoint)."""
+ROUTE_MARGIN_M = 0.15  # legs keep this much more than the robot radius from walls where they can
+
+
+def waypoint_route(
+    world: World, passable: NDArray[np.bool_], waypoints: NDArray, roomy: NDArray[np.bool_] | None = None
+) -> tuple[NDArray[np.float64] | None, int]:
+    """Join waypoints by shortest paths; returns (route, -1) or (None, index of the unreachable waypoint).
+
+    Each leg is planned in ``roomy`` (free space with a margin) when both its ends lie there and it
+    connects them, so that a follower's small deviations at corners do not touch walls; else in
+    ``passable``.
+    """
     pieces = [np.asarray(waypoints[0], float)[None, :]]
     for i in range(1, len(waypoints)):
-        piece = shortest_path(world, passable, waypoints[i - 1], waypoints[i])
+        piece = shortest_path(world, roomy, waypoints[i - 1], waypoints[i]) if roomy is not None else None
+        if piece is None:
+            piece = shortest_path(world, passable, waypoints[i - 1], waypoints[i])
         if piece is None:
             return None, i
         pieces.append(piece[1:])

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from scenarios.routes import auto_route, polyline_length, waypoint_route
+from scenarios.routes import ROUTE_MARGIN_M, auto_route, polyline_length, waypoint_route
 from scenarios.schema import ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
 from scenarios.world import World, build_world
@@ -102,7 +102,9 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
     if route_spec.waypoints is not None:
         for i, point in enumerate(route_spec.waypoints):
             _check_point(path, f"mapping_route.waypoints.{i}", point, world, passable, radius)
-        route, bad = waypoint_route(world, passable, np.asarray(route_spec.waypoints, float))
+        route, bad = waypoint_route(
+            world, passable, np.asarray(route_spec.waypoints, float), world.eroded(radius + ROUTE_MARGIN_M)
+        )
         if route is None:
             raise ScenarioError(
                 path,

@@ -129,8 +129,10 @@ def test_a_motion_into_a_wall_stops_at_contact_and_counts_a_collision(tmp_path):
     with Simulator(scenario) as sim:
         sim.reset([-2.0, 0.0, np.pi])  # facing the wall at x = -4
         collided = False
-        for _ in range(20):
+        for tick in range(20):
             collided = sim.step(Command(1.0, 0.0)).collided
+            # a step lasts one sensor period, collision or not
+            assert sim.time == pytest.approx((tick + 1) / scenario.spec.sensor.rate_hz)
             if collided:
                 break
         assert collided and sim.collisions == 1
@@ -161,3 +163,26 @@ def test_two_simulators_in_one_process_do_not_share_a_world(tmp_path):
         ranges_a = np.linalg.norm(a.scan()[:, :2], axis=1)
         assert ranges_a.max() < 5.1  # only the room's walls, not tiny's
         assert b.mesh_triangles != a.mesh_triangles
+
+
+def test_a_runs_noise_depends_only_on_the_seed_and_its_stream(tmp_path):
+    """Trial k sees the same sensor and odometry noise whatever ran before it in the process."""
+    noise = {"translation": 0.02, "rotation_deg_per_m": 0.5}
+    scenario = load_scenario(box_room(tmp_path, noise=noise, range_noise=0.02))
+
+    def trial(sim: Simulator, index: int) -> tuple[np.ndarray, np.ndarray]:
+        sim.reset([-3.0, 0.0, 0.0], stream=(2, index))
+        first = sim.scan()
+        for _ in range(5):
+            sim.step(Command(1.0, 0.1))
+        return first, sim.odom_pose
+
+    with Simulator(scenario, seed=4) as a, Simulator(scenario, seed=4) as b:
+        trial(a, 0)
+        trial(a, 1)
+        scan_a, odom_a = trial(a, 2)
+        scan_b, odom_b = trial(b, 2)  # trial 2 alone, in a fresh simulator
+        np.testing.assert_array_equal(scan_a, scan_b)
+        np.testing.assert_array_equal(odom_a, odom_b)
+        other, _ = trial(b, 3)
+        assert not np.array_equal(other, scan_b)
