@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 BENCH := $(VENV)/bin/navtopo-bench
 STAMP := $(VENV)/.installed
-# the default benchmark: the paper's scene, every system
+# the default benchmark: the paper's scene with the systems that navigate today
 BENCH_SCENARIO ?= corridor_150m
 BENCH_SYSTEMS ?= oracle
 BENCH_OUT ?= results/$(BENCH_SCENARIO)/bench

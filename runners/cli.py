@@ -36,6 +36,8 @@ def _load(name: str, with_trials: bool = True):
         return load_scenario(name, with_trials=with_trials)
     except ScenarioError as exc:
         fail(str(exc))
+    except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the file
+        fail(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}".replace("\n", " "))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -280,6 +282,11 @@ def scenario_validate(files: Annotated[list[str], typer.Argument(help="scenario 
         except ScenarioError as exc:
             bad += 1
             err.print(str(exc), highlight=False, soft_wrap=True)
+        except Exception as exc:  # noqa: BLE001 - one line per file, and the next file is checked
+            bad += 1
+            err.print(
+                f"{name}: cannot be loaded: {type(exc).__name__}: {exc}".replace("\n", " "), highlight=False, soft_wrap=True
+            )
         else:
             console.print(f"{name}: ok", highlight=False)
     if bad:

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from scenarios.routes import ROUTE_MARGIN_M, auto_route, polyline_length, waypoint_route
 from scenarios.schema import ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
-from scenarios.world import World, build_world
+from scenarios.world import World, build_world, corridor_polygon, rectangle
 
 BUNDLED_DIR = Path(__file__).resolve().parent / "bundled"
 
@@ -93,9 +94,53 @@ def _check_point(scenario_file: Path, key: str, xy, world: World, passable: NDAr
         raise ScenarioError(scenario_file, key, f"{list(xy)} is {where}; the robot (radius {radius} m) needs more room")
 
 
+MIN_PIECE_M2 = 0.25  # smaller free pieces (raster slivers around obstacles) are ignored
+
+
+def check_connected(spec: ScenarioSpec, path: Path, world: World) -> None:
+    """Free space must be one connected piece: name the shape of any piece cut off from the rest."""
+    labels, count = ndimage.label(world.free, structure=np.ones((3, 3), bool))
+    if count <= 1:
+        return
+    sizes = np.bincount(labels.ravel()) * world.resolution**2
+    sizes[0] = 0.0
+    main = int(np.argmax(sizes))  # the rest of the world: where the route starts, else the largest piece
+    if spec.mapping_route.waypoints:
+        cell = world.to_cell(np.asarray(spec.mapping_route.waypoints[0], float))
+        if world.inside(cell) and labels[tuple(cell)] > 0:
+            main = int(labels[tuple(cell)])
+    for piece in np.nonzero(sizes >= MIN_PIECE_M2)[0]:
+        if piece == main:
+            continue
+        cell = np.argwhere(labels == piece)[0]
+        x, y = world.to_world(cell)
+        key = "world"
+        if spec.world.map is None:
+            from shapely.geometry import Point
+
+            point = Point(x, y)
+            for kind, shapes, make in (
+                ("corridors", spec.world.corridors, lambda c: corridor_polygon(c.points, c.width)),
+                ("rooms", spec.world.rooms, lambda r: rectangle(r.center, r.size, r.yaw)),
+            ):
+                for i, shape in enumerate(shapes):
+                    if make(shape).buffer(world.resolution).contains(point):
+                        key = f"world.{kind}.{i}"
+                        break
+                if key != "world":
+                    break
+        raise ScenarioError(
+            path, key, f"free space near ({x:.2f}, {y:.2f}) ({sizes[piece]:.1f} m²) is not connected to the rest of the world"
+        )
+
+
 def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> Scenario:
     rng = np.random.default_rng(spec.seed)
-    world = build_world(spec.world, path)
+    try:
+        world = build_world(spec.world, path)
+    except ValueError as exc:
+        raise ScenarioError(path, "world", str(exc)) from None
+    check_connected(spec, path, world)
     radius = spec.robot.radius
     passable = world.eroded(radius)
     route_spec = spec.mapping_route
@@ -123,8 +168,6 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
         return scenario
     # trials must be reachable from where the route runs
     start_cell = world.to_cell(route[0])
-    from scipy import ndimage
-
     labels, _ = ndimage.label(passable, structure=np.ones((3, 3), bool))
     reachable = labels == labels[tuple(start_cell)]
     trial_rng = np.random.default_rng(rng.integers(2**32))

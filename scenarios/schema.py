@@ -14,9 +14,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 FORMAT = "navtopo-scenario/1"
 
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-XY = tuple[float, float]
+# numbers are numbers: no strings or booleans coerced, no NaN or infinity
+Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+Positive = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0)]
+NonNegative = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0)]
+Integer = Annotated[int, Field(strict=True)]
+Flag = Annotated[bool, Field(strict=True)]
+XY = tuple[Number, Number]
+MAX_RASTER_CELLS = 60_000_000  # about 7.7 x 7.7 km at 1 m, 390 x 390 m at 0.05 m
 
 
 class ScenarioError(Exception):
@@ -39,14 +44,14 @@ class CorridorSpec(Strict):
 class RoomSpec(Strict):
     center: XY
     size: tuple[Positive, Positive]
-    yaw: float = 0.0  # degrees
+    yaw: Number = 0.0  # degrees
 
 
 class ObstacleSpec(Strict):
     center: XY
     size: tuple[Positive, Positive]
     height: Positive
-    yaw: float = 0.0  # degrees
+    yaw: Number = 0.0  # degrees
 
 
 class MapSpec(Strict):
@@ -56,7 +61,7 @@ class MapSpec(Strict):
 class WorldSpec(Strict):
     resolution: Positive = 0.05
     wall_height: Positive = 2.6
-    ceiling: bool = True  # extension of format 1: a flat ceiling at wall_height, as indoors
+    ceiling: Flag = True  # extension of format 1: a flat ceiling at wall_height, as indoors
     corridors: list[CorridorSpec] = []
     rooms: list[RoomSpec] = []
     obstacles: list[ObstacleSpec] = []
@@ -78,9 +83,9 @@ class RobotSpec(Strict):
 
 
 class SensorSpec(Strict):
-    channels: Annotated[int, Field(ge=1, le=128)] = 16
-    vertical_fov: tuple[float, float] = (-15.0, 15.0)
-    horizontal_resolution: Annotated[float, Field(gt=0, le=45)] = 1.0
+    channels: Annotated[int, Field(strict=True, ge=1, le=128)] = 16
+    vertical_fov: tuple[Number, Number] = (-15.0, 15.0)
+    horizontal_resolution: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=45)] = 1.0
     max_range: Positive = 15.0
     mount_height: Positive = 0.6
     rate_hz: Positive = 5.0
@@ -99,8 +104,10 @@ class SensorSpec(Strict):
 
 
 class OdometryNoiseSpec(Strict):
-    translation: NonNegative  # relative scale error of travelled distance (0.02 = 2 %)
-    rotation_deg_per_m: NonNegative  # heading drift per metre travelled
+    # random walks per metre travelled (runners/sim.py): after d metres the forward error has
+    # std translation * sqrt(d) m and the heading error rotation_deg_per_m * sqrt(d) degrees
+    translation: NonNegative
+    rotation_deg_per_m: NonNegative
 
 
 class OdometrySpec(Strict):
@@ -123,12 +130,12 @@ class RouteSpec(Strict):
 
 
 class TrialSpec(Strict):
-    start: tuple[float, float, float]  # x, y, yaw in degrees
+    start: tuple[Number, Number, Number]  # x, y, yaw in degrees
     goal: XY
 
 
 class TrialGenerateSpec(Strict):
-    count: Annotated[int, Field(ge=1, le=10_000)]
+    count: Annotated[int, Field(strict=True, ge=1, le=10_000)]
     min_distance: NonNegative = 0.0
     max_distance: Positive | None = None  # extension of format 1: an upper bound on shortest_m
 
@@ -147,7 +154,7 @@ class ScenarioSpec(Strict):
     format: Literal["navtopo-scenario/1"]
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    seed: int = 0
+    seed: Integer = 0
     world: WorldSpec
     robot: RobotSpec = RobotSpec()
     sensor: SensorSpec = SensorSpec()
@@ -156,9 +163,13 @@ class ScenarioSpec(Strict):
     trials: list[TrialSpec] | TrialsGenerate = []
 
 
+UNION_TAGS = {"list[TrialSpec]", "TrialsGenerate", "MapSpec", "OdometryNoiseSpec", "AutoRouteSpec", "list[tuple[float, float]]"}
+
+
 def _key(loc: tuple[Any, ...]) -> str:
-    # pydantic reports union branches as extra loc parts ("list[...]", "TrialsGenerate"): drop them
-    parts = [str(p) for p in loc if not (isinstance(p, str) and ("[" in p or p[:1].isupper()))]
+    # pydantic names the branch of a union in the location ("TrialsGenerate", "list[...]"): drop
+    # those tags, never a user's key
+    parts = [str(p) for p in loc if not (isinstance(p, str) and (p in UNION_TAGS or p.startswith(("list[", "tuple["))))]
     return ".".join(parts) or "(top level)"
 
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -31,7 +32,7 @@ from shapely import affinity
 from shapely.geometry import LinearRing, LineString, MultiPolygon, Polygon, box
 from shapely.ops import unary_union
 
-from scenarios.schema import ObstacleSpec, ScenarioError, WorldSpec
+from scenarios.schema import MAX_RASTER_CELLS, ObstacleSpec, ScenarioError, WorldSpec
 
 PADDING_M = 1.0  # wall margin around the free space in a shape world's raster
 
@@ -163,6 +164,11 @@ def shape_world(spec: WorldSpec) -> World:
     res = spec.resolution
     origin = np.array([np.floor((xmin - PADDING_M) / res) * res, np.floor((ymin - PADDING_M) / res) * res])
     shape = (int(np.ceil((ymax + PADDING_M - origin[1]) / res)), int(np.ceil((xmax + PADDING_M - origin[0]) / res)))
+    if shape[0] * shape[1] > MAX_RASTER_CELLS:
+        raise ValueError(
+            f"a raster of {shape[0]} x {shape[1]} cells at {res} m is too large (at most {MAX_RASTER_CELLS:,} cells): "
+            "use a coarser resolution or a smaller world"
+        )
     return World(
         resolution=res,
         origin=origin,
@@ -198,14 +204,25 @@ def read_ros_map(
     mode = meta.get("mode", "trinary")
     if mode not in ("trinary", "scale", "raw"):
         raise ScenarioError(yaml_path, "mode", f"unknown mode {mode!r}")
+
+    def number(key: str, value: Any) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise ScenarioError(yaml_path, key, f"must be a finite number (got {value!r})")
+        return float(value)
+
     origin = meta["origin"]
     if not (isinstance(origin, list) and len(origin) == 3):
         raise ScenarioError(yaml_path, "origin", "must be [x, y, yaw]")
-    if abs(float(origin[2])) > 1e-9:
+    origin = [number(f"origin.{i}", v) for i, v in enumerate(origin)]
+    if abs(origin[2]) > 1e-9:
         raise ScenarioError(yaml_path, "origin", "a rotated map origin (yaw != 0) is not supported")
-    resolution = float(meta["resolution"])
+    resolution = number("resolution", meta["resolution"])
     if resolution <= 0:
         raise ScenarioError(yaml_path, "resolution", f"must be > 0 (got {resolution})")
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise ScenarioError(yaml_path, "negate", f"must be 0 or 1 (got {negate!r})")
+    free_thresh = number("free_thresh", meta.get("free_thresh", 0.196))
     image_path = (yaml_path.parent / str(meta["image"])).resolve()
     if not image_path.is_file():
         raise ScenarioError(yaml_path, "image", f"map image {image_path.name} not found next to {yaml_path.name}")
@@ -214,16 +231,15 @@ def read_ros_map(
         raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
     if image.ndim == 3:
         image = image[..., :3].mean(axis=2)
+    scale = 65535.0 if image.dtype == np.uint16 else 255.0
     image = image.astype(np.float64)
-    scale = 65535.0 if image.max() > 255 else 255.0
     if mode == "raw":
         free = image == 0
     else:
-        p = image / scale if int(meta.get("negate", 0)) else (scale - image) / scale
-        free_thresh = float(meta.get("free_thresh", 0.196))
+        p = image / scale if negate else (scale - image) / scale
         free = p <= free_thresh
     free = free[::-1].copy()  # image row 0 is the largest y
-    return free, np.array([float(origin[0]), float(origin[1])]), resolution
+    return free, np.array([origin[0], origin[1]]), resolution
 
 
 def largest_component(free: NDArray[np.bool_]) -> NDArray[np.bool_]:

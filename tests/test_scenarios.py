@@ -48,6 +48,13 @@ def write(tmp_path: Path, spec: dict, name: str = "s.yaml") -> Path:
         (lambda s: s["trials"][0].update(goal=[9.0, 0.85]), "trials.0.goal", "from a wall"),
         (lambda s: s["mapping_route"].update(waypoints=[[1, 0], [30, 0]]), "mapping_route.waypoints.1", "inside a wall"),
         (lambda s: s["world"].update(map={"yaml": "missing.yaml"}, corridors=[]), "world.map.yaml", "not found"),
+        (lambda s: s["world"]["corridors"][0].update(width=True), "world.corridors.0.width", "valid number"),
+        (lambda s: s["world"]["corridors"][0].update(width=float("inf")), "world.corridors.0.width", "finite number"),
+        (lambda s: s["world"]["corridors"][0]["points"][0].__setitem__(0, float("nan")), "world.corridors.0.points.0.0", "finite"),
+        (lambda s: s.update(seed="7"), "seed", "valid integer"),
+        (lambda s: s["world"].update(Obstacles=[]), "world.Obstacles", "unknown key"),
+        (lambda s: s["world"].update(resolution=1e-5), "world", "too large"),
+        (lambda s: s["world"]["corridors"].append({"points": [[30, 30], [50, 30]], "width": 2.0}), "world.corridors.1", "not connected"),
     ],
 )
 def test_a_bad_scenario_is_one_line_naming_file_key_and_reason(tmp_path, change, key, reason):
@@ -62,12 +69,11 @@ def test_a_bad_scenario_is_one_line_naming_file_key_and_reason(tmp_path, change,
     assert reason in message
 
 
-def test_disconnected_free_space_is_rejected(tmp_path):
-    spec = minimal()
-    spec["world"]["corridors"].append({"points": [[0, 10], [10, 10]], "width": 2.0})
-    spec["trials"] = [{"start": [1, 0, 0], "goal": [9, 10]}]
-    with pytest.raises(ScenarioError, match=r"trials\.0: .*not connected"):
-        load_scenario(write(tmp_path, spec))
+def test_a_map_yaml_with_a_bad_value_is_one_line_naming_the_map_file(tmp_path):
+    (tmp_path / "m.yaml").write_text("image: depot.pgm\nresolution: abc\norigin: [0, 0, 0]\n")
+    (tmp_path / "depot.pgm").write_bytes((MAPS / "depot.pgm").read_bytes())
+    with pytest.raises(ScenarioError, match=r"m\.yaml: resolution: must be a finite number \(got 'abc'\)"):
+        read_ros_map(tmp_path / "m.yaml", tmp_path / "s.yaml")
 
 
 def test_map_image_missing_names_the_map_file(tmp_path):
