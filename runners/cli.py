@@ -323,6 +323,23 @@ def report(run_dirs: Annotated[list[Path], typer.Argument(help="results folders 
         console.print(f"tables: {out / 'table.md'}, {out / 'table.csv'}")
 
 
+@app.command("plot-graph")
+def plot_graph_command(
+    run_dir: Annotated[Path, typer.Argument(help="a results folder with a NavTopo map")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write")],
+) -> None:
+    """Draw NavTopo's graph (locations, their walls, edges) over the ground-truth map."""
+    from navtopo.graph import GraphFormatError
+    from reports.graph_plot import plot_graph
+
+    if not (run_dir / "maps" / "navtopo").is_dir():
+        fail(f"{run_dir}: no NavTopo map (maps/navtopo missing)")
+    try:
+        console.print(f"wrote {plot_graph(run_dir, output)}")
+    except GraphFormatError as exc:
+        fail(str(exc))
+
+
 @app.command()
 def config(system: Annotated[str | None, typer.Argument(help="a system name; all when left out")] = None) -> None:
     """The resolved configuration a run will use (YAML)."""

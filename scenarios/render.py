@@ -16,10 +16,10 @@ from scenarios.scenario import Scenario  # noqa: E402
 from scenarios.world import rectangle  # noqa: E402
 
 
-def draw_world(ax: plt.Axes, scenario: Scenario) -> None:
+def draw_world(ax: plt.Axes, scenario: Scenario, wall_shade: float = 0.18) -> None:
     world = scenario.world
     xmin, ymin, xmax, ymax = world.bounds
-    image = np.where(world.structure_free, 1.0, 0.18)
+    image = np.where(world.structure_free, 1.0, wall_shade)
     ax.imshow(image, origin="lower", extent=(xmin, xmax, ymin, ymax), cmap="gray", vmin=0, vmax=1, interpolation="nearest")
     norm = colors.Normalize(vmin=0.0, vmax=world.wall_height)
     cmap = matplotlib.colormaps["viridis"]
