@@ -21,7 +21,7 @@ from navtopo import geometry as se2  # noqa: E402
 from navtopo.graph import TopologicalGraph  # noqa: E402
 from navtopo.local_grid import OCCUPIED, GridConfig, cell_to_xy  # noqa: E402
 from scenarios import load_scenario  # noqa: E402
-from scenarios.render import draw_world  # noqa: E402
+from scenarios.render import draw_world, save_map_figure  # noqa: E402
 
 
 def plot_graph(run_dir: Path, output: Path, dpi: int = 200) -> Path:
@@ -65,15 +65,4 @@ def plot_graph(run_dir: Path, output: Path, dpi: int = 200) -> Path:
         + ("" if noise is None else " (vertices at odometry poses: noisy)"),
         fontsize=9,
     )
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_aspect("equal")
-    ax.set_xlim(xmin, xmax)
-    ax.set_ylim(ymin, ymax)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncol=3, fontsize=7, frameon=False)
-    fig.tight_layout()
-    output = Path(output)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(output, dpi=dpi)
-    plt.close(fig)
-    return output
+    return save_map_figure(fig, ax, scenario, output, dpi, legend_columns=3)

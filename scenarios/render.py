@@ -100,12 +100,18 @@ def render(scenario: Scenario, output: Path, show_route: bool = True, show_trial
         f"{len(scenario.trials)} trials" + (f" (mean {mean:.1f} m)" if mean else ""),
         fontsize=10,
     )
+    return save_map_figure(fig, ax, scenario, output, dpi, legend_columns=4)
+
+
+def save_map_figure(fig: plt.Figure, ax: plt.Axes, scenario: Scenario, output: Path, dpi: int, legend_columns: int) -> Path:
+    """Metric axes over the world's bounds, the legend under the map, and the PNG written."""
+    xmin, ymin, xmax, ymax = scenario.world.bounds
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
     ax.set_xlim(xmin, xmax)
     ax.set_ylim(ymin, ymax)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncol=4, fontsize=7, frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncol=legend_columns, fontsize=7, frameon=False)
     fig.tight_layout()
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
