@@ -6,7 +6,7 @@ BENCH := $(VENV)/bin/navtopo-bench
 STAMP := $(VENV)/.installed
 # the default benchmark: the paper's scene with the systems that navigate today
 BENCH_SCENARIO ?= corridor_150m
-BENCH_SYSTEMS ?= oracle
+BENCH_SYSTEMS ?= metric_grid,oracle
 BENCH_OUT ?= results/$(BENCH_SCENARIO)/bench
 
 .PHONY: setup bench test test-slow lint clean
