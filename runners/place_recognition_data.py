@@ -242,10 +242,15 @@ def train_descriptor(
     )
     metrics = train(scans, config, progress=report, validation=validation)
     metrics["data"] = {"train": asdict(train_config), "held_out": asdict(held_out)}
-    Path(metrics["stats_path"]).write_text(json.dumps(metrics, indent=2, default=str) + "\n")
+    # the statistics ship with the weights: file names only, no machine paths
+    metrics["weights_file"] = Path(metrics.pop("weights_path")).name
+    weights_path = str(Path(metrics["stats_path"]).with_name(metrics["weights_file"]))
+    metrics["stats_file"] = Path(metrics.pop("stats_path")).name
+    metrics.get("config", {}).pop("output_dir", None)
+    Path(weights_path).with_name(metrics["stats_file"]).write_text(json.dumps(metrics, indent=2, default=str) + "\n")
     summary = {k: metrics[k] for k in ("steps", "epochs", "seconds", "ms_per_step", "loss_last")}
-    make_descriptor(descriptor, weights=metrics["weights_path"])  # loads back
-    return {**summary, "validation": metrics.get("validation"), "weights": metrics["weights_path"]}
+    make_descriptor(descriptor, weights=weights_path)  # loads back
+    return {**summary, "validation": metrics.get("validation"), "weights": weights_path}
 
 
 if __name__ == "__main__":

@@ -34,8 +34,8 @@ def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial
         start_new_session=True,
     )
     trials = out / "trials.jsonl"
-    deadline = time.time() + 400
-    while time.time() < deadline and process.poll() is None:
+    deadline = time.monotonic() + 400
+    while time.monotonic() < deadline and process.poll() is None:
         if trials.is_file() and trials.read_text().count("\n") >= 1:
             break
         time.sleep(0.2)
