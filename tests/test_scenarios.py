@@ -50,11 +50,19 @@ def write(tmp_path: Path, spec: dict, name: str = "s.yaml") -> Path:
         (lambda s: s["world"].update(map={"yaml": "missing.yaml"}, corridors=[]), "world.map.yaml", "not found"),
         (lambda s: s["world"]["corridors"][0].update(width=True), "world.corridors.0.width", "valid number"),
         (lambda s: s["world"]["corridors"][0].update(width=float("inf")), "world.corridors.0.width", "finite number"),
-        (lambda s: s["world"]["corridors"][0]["points"][0].__setitem__(0, float("nan")), "world.corridors.0.points.0.0", "finite"),
+        (
+            lambda s: s["world"]["corridors"][0]["points"][0].__setitem__(0, float("nan")),
+            "world.corridors.0.points.0.0",
+            "finite",
+        ),
         (lambda s: s.update(seed="7"), "seed", "valid integer"),
         (lambda s: s["world"].update(Obstacles=[]), "world.Obstacles", "unknown key"),
         (lambda s: s["world"].update(resolution=1e-5), "world", "too large"),
-        (lambda s: s["world"]["corridors"].append({"points": [[30, 30], [50, 30]], "width": 2.0}), "world.corridors.1", "not connected"),
+        (
+            lambda s: s["world"]["corridors"].append({"points": [[30, 30], [50, 30]], "width": 2.0}),
+            "world.corridors.1",
+            "not connected",
+        ),
     ],
 )
 def test_a_bad_scenario_is_one_line_naming_file_key_and_reason(tmp_path, change, key, reason):
