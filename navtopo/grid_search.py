@@ -394,9 +394,9 @@ _UNSEEN, _OPEN, _CLOSED = 0, 1, 2
 
 
 @njit(cache=True)
-def _astar_kernel(free, start_r, start_c, goal_r, goal_c):
-    height, width = free.shape
-    n_cells = height * width
+def _open_search(n_cells, start, start_key):
+    """The arrays of one best-first search over n_cells, with ``start`` open at ``start_key``:
+    state, g, parent, heap position, and the heap itself (nodes, keys, tie-breakers)."""
     state = np.zeros(n_cells, np.uint8)
     g = np.empty(n_cells, np.float64)
     parent = np.empty(n_cells, np.int32)
@@ -404,16 +404,22 @@ def _astar_kernel(free, start_r, start_c, goal_r, goal_c):
     nodes = np.empty(n_cells, np.int32)
     keys = np.empty(n_cells, np.float64)
     ties = np.empty(n_cells, np.float64)
-
-    start = start_r * width + start_c
-    goal = goal_r * width + goal_c
     g[start] = 0.0
     parent[start] = start
     state[start] = _OPEN
     nodes[0] = start
-    keys[0] = _octile(start_r, start_c, goal_r, goal_c)
+    keys[0] = start_key
     ties[0] = 0.0
     pos[start] = 0
+    return state, g, parent, pos, nodes, keys, ties
+
+
+@njit(cache=True)
+def _astar_kernel(free, start_r, start_c, goal_r, goal_c):
+    height, width = free.shape
+    start = start_r * width + start_c
+    goal = goal_r * width + goal_c
+    state, g, parent, pos, nodes, keys, ties = _open_search(height * width, start, _octile(start_r, start_c, goal_r, goal_c))
     size = 1
 
     while size > 0:
@@ -459,24 +465,9 @@ def _lazy_theta_kernel(clear, start_r, start_c, goal_r, goal_c):
     (SetVertex). If it fails, the cell falls back to its best closed 8-neighbour ("path 1").
     """
     height, width = clear.shape
-    n_cells = height * width
-    state = np.zeros(n_cells, np.uint8)
-    g = np.empty(n_cells, np.float64)
-    parent = np.empty(n_cells, np.int32)
-    pos = np.empty(n_cells, np.int32)
-    nodes = np.empty(n_cells, np.int32)
-    keys = np.empty(n_cells, np.float64)
-    ties = np.empty(n_cells, np.float64)
-
     start = start_r * width + start_c
     goal = goal_r * width + goal_c
-    g[start] = 0.0
-    parent[start] = start
-    state[start] = _OPEN
-    nodes[0] = start
-    keys[0] = _euclid(start_r, start_c, goal_r, goal_c)
-    ties[0] = 0.0
-    pos[start] = 0
+    state, g, parent, pos, nodes, keys, ties = _open_search(height * width, start, _euclid(start_r, start_c, goal_r, goal_c))
     size = 1
 
     while size > 0:

@@ -56,6 +56,21 @@ def config() -> NavTopoConfig:
     return NavTopoConfig(descriptor="scan_context")
 
 
+def drive(system: NavTopo, sim: Simulator, waypoints, true_at: dict) -> list[int]:
+    """Follow the waypoints on the true pose, feeding every scan to the system; records the true
+    pose at each stamp and returns the graph's size after each scan."""
+    follower = PathFollower(FollowerConfig())
+    follower.set_path(np.array(waypoints, dtype=float))
+    sizes = []
+    while not follower.reached:
+        obs = sim.observe()
+        true_at[obs.stamp] = sim.true_pose
+        system.observe(obs)
+        sizes.append(len(system.graph))
+        sim.step(follower.command(sim.true_pose))
+    return sizes
+
+
 def test_turning_in_place_keeps_one_location_and_leaving_the_room_adds_more(scenario):
     system = NavTopo.create(config())
     with Simulator(scenario) as sim:
@@ -69,13 +84,7 @@ def test_turning_in_place_keeps_one_location_and_leaving_the_room_adds_more(scen
         assert len(system.graph) == 1
         assert system.maintainer.counters.inside > 5
 
-        follower = PathFollower(FollowerConfig())
-        follower.set_path(np.array([[0.0, 0.0], [20.0, 0.0]]))
-        while not follower.reached:
-            obs = sim.observe()
-            true_at[obs.stamp] = sim.true_pose
-            system.observe(obs)
-            sim.step(follower.command(sim.true_pose))
+        drive(system, sim, [[0.0, 0.0], [20.0, 0.0]], true_at)
         assert sim.collisions == 0
     # 20 m with locations at most 5 m from their centre: several, but not one per scan
     assert 3 <= len(system.graph) <= 8
@@ -96,13 +105,7 @@ def test_driving_back_reuses_the_locations(scenario):
     system = NavTopo.create(config())
     with Simulator(scenario) as sim:
         sim.reset([0.0, 0.0, 0.0])
-        follower = PathFollower(FollowerConfig())
-        follower.set_path(np.array([[0.0, 0.0], [20.0, 0.0], [0.5, 0.0]]))
-        counts = []
-        while not follower.reached:
-            system.observe(sim.observe())
-            counts.append(len(system.graph))
-            sim.step(follower.command(sim.true_pose))
+        counts = drive(system, sim, [[0.0, 0.0], [20.0, 0.0], [0.5, 0.0]], {})
     outward = max(counts[: len(counts) // 2])
     assert len(system.graph) <= outward + 1  # the way back adds (almost) nothing
 
@@ -128,13 +131,7 @@ def test_global_localization_finds_the_location_and_the_pose_without_a_prior(sce
     true_at = {}
     with Simulator(scenario) as sim:
         sim.reset([0.0, 0.0, 0.0])
-        follower = PathFollower(FollowerConfig())
-        follower.set_path(np.array([[0.0, 0.0], [20.0, 0.0]]))
-        while not follower.reached:
-            obs = sim.observe()
-            true_at[obs.stamp] = sim.true_pose
-            system.observe(obs)
-            sim.step(follower.command(sim.true_pose))
+        drive(system, sim, [[0.0, 0.0], [20.0, 0.0]], true_at)
         vertex_truth = [true_at[v.stamp] for v in system.graph.vertices]
         localizer = system.maintainer.localizer
         located = 0
