@@ -26,6 +26,7 @@ back, nor forward onto a later part of a path that doubles back.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,12 +48,30 @@ class FollowerConfig(BaseModel):
     )
     angular_gain: float = Field(default=2.0, ge=0, description="turn rate per heading error, 1/s")
     lookahead: float = Field(default=0.6, gt=0, description="distance of the target along the path, m")
-    goal_tolerance: float = Field(default=0.5, gt=0, description="reached within this of the last point, m")
+    goal_tolerance: float = Field(
+        default=0.35,
+        gt=0,
+        description="reached within this of the last point, m; in a benchmark run the protocol's stop tolerance",
+    )
     slowdown_distance: float = Field(default=1.0, ge=0, description="path length before the end over which the speed falls, m")
     min_linear: float = Field(default=0.1, ge=0, description="speed floor while slowing near the end, m/s")
     corner_angle: float = Field(default=0.35, ge=0, le=math.pi, description="a vertex turning more than this is a corner, rad")
     corner_tolerance: float = Field(default=0.15, gt=0, description="a corner is passed once the robot is this close to it, m")
     progress_window: float = Field(default=1.5, gt=0, description="how far ahead of the progress the robot is projected, m")
+
+    def for_robot(self, context: Any) -> FollowerConfig:
+        """This config with what the run fixes filled in, in one place for every system: the
+        robot's speed limits (``context.robot``) and the protocol's stop tolerance
+        (``context.stop_tolerance``). ``context`` is the runner's ``SystemContext`` (or None)."""
+        if context is None:
+            return self
+        return self.model_copy(
+            update={
+                "max_linear": float(context.robot.max_linear),
+                "max_angular": float(context.robot.max_angular),
+                "goal_tolerance": float(getattr(context, "stop_tolerance", self.goal_tolerance)),
+            }
+        )
 
 
 class PathFollower:

@@ -53,3 +53,30 @@ class PlanningStats:
     """Wall-clock durations of the planning calls of one trial, in milliseconds."""
 
     planning_ms: list[float] = field(default_factory=list)
+
+
+MEMORY_PARTS = ("map", "localization", "derived", "model")
+
+
+@dataclass
+class MemoryBreakdown:
+    """Exact bytes a navigation system holds, split the same way for every system (DESIGN.md,
+    "Measurement definitions"). Each figure is an ``nbytes`` sum over the data structures.
+
+    map:          the navigation map as stored (grids, graph structure, poses);
+    localization: what is kept to localize (descriptors, prepared grids, distance fields of the map);
+    derived:      what is built from the map for planning (eroded masks, union grids);
+    model:        learned weights loaded at navigation time.
+    """
+
+    map: int = 0
+    localization: int = 0
+    derived: int = 0
+    model: int = 0
+
+    @property
+    def total(self) -> int:
+        return int(self.map + self.localization + self.derived + self.model)
+
+    def as_dict(self) -> dict[str, int]:
+        return {**{part: int(getattr(self, part)) for part in MEMORY_PARTS}, "total": self.total}

@@ -62,21 +62,56 @@ def run(
     config_file: Annotated[
         Path | None, typer.Option("--config", help="YAML {system: {key: value}} merged over the defaults (see `config`)")
     ] = None,
+    setting: Annotated[
+        str | None,
+        typer.Option(
+            help="precise (exact odometry) or noisy (odometry 2 %, 0.5°/m; lidar range noise 1 cm); "
+            "comma-separated for one run each (default: the scenario file's own noise)"
+        ),
+    ] = None,
+    initial_pose_error: Annotated[
+        str,
+        typer.Option(help="XY_M,YAW_DEG: uniform error of the initial pose given to systems that take one (0,0: exact)"),
+    ] = "0.5,10",
+    stop_tolerance: Annotated[
+        float, typer.Option(help="m: every system that stops by its own estimate stops this close to the goal", min=0.01)
+    ] = 0.35,
 ) -> None:
-    """Map each scenario's route with every system, then run the navigation trials."""
+    """Map each scenario's route with every system, then run the navigation trials.
+
+    The protocol is the same for every system (docs/DESIGN.md): systems that take an initial pose
+    get the trial's start with a seeded error (--initial-pose-error), and every system that
+    declares "reached" by its own estimate stops within --stop-tolerance of the goal; success is
+    the robot's true position within 0.5 m of the goal when it stops.
+    """
     from runners.executors import ExecutorUnavailable, check_executor
     from runners.run import RunOptions, execute, scenario_fingerprint
-    from runners.systems import registry
+    from runners.systems import system_names
 
     try:
         check_executor(executor)
     except ExecutorUnavailable as exc:
         fail(str(exc))
-    known = registry()
+    known = system_names()
     names = [s.strip() for s in systems.split(",") if s.strip()]
     unknown = [s for s in names if s not in known]
     if unknown and resume is None:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
+    from runners.protocol import SETTINGS, TrialProtocol
+
+    setting_list: list[str | None] = [None]
+    if setting is not None:
+        setting_list = [x.strip() for x in setting.split(",") if x.strip()]
+        bad = [x for x in setting_list if x not in SETTINGS]
+        if bad or not setting_list:
+            fail(f"--setting: unknown setting {', '.join(bad) or repr(setting)} (choose from {', '.join(SETTINGS)})")
+    try:
+        error_xy, error_yaw = (float(v) for v in initial_pose_error.split(","))
+        if not (error_xy >= 0 and error_yaw >= 0):
+            raise ValueError
+    except ValueError:
+        fail(f"--initial-pose-error: expected two non-negative numbers XY_M,YAW_DEG, got {initial_pose_error!r}")
+    protocol = TrialProtocol(initial_pose_error_xy=error_xy, initial_pose_error_yaw_deg=error_yaw, stop_tolerance=stop_tolerance)
     seed_list: list[int | None] = [seed]
     if seeds:
         try:
@@ -103,6 +138,9 @@ def run(
                 ("--trials", trials is not None),
                 ("--seed", seed is not None),
                 ("--config", config_file is not None),
+                ("--setting", setting is not None),
+                ("--initial-pose-error", initial_pose_error != "0.5,10"),
+                ("--stop-tolerance", stop_tolerance != 0.35),
             )
             if value
         ]
@@ -117,27 +155,30 @@ def run(
         fail("give at least one SCENARIO (see `navtopo-bench scenario list`)")
     if out is not None and resume is None and (out / "manifest.json").exists():
         fail(f"{out}: already holds a run; use --resume {out} to finish it, or another --out")
-    if out is not None and (len(scenarios) > 1 or len(seed_list) > 1):
-        fail("--out takes one scenario and one seed; leave it out to get a folder per run")
+    if out is not None and (len(scenarios) > 1 or len(seed_list) > 1 or len(setting_list) > 1):
+        fail("--out takes one scenario, one seed and one setting; leave it out to get a folder per run")
     overrides = _read_overrides(config_file, names) if config_file is not None else None
     loaded = []
     for name in scenarios:
         loaded.append(_load(name))
     for scenario in loaded:
-        for s in seed_list:
-            options = RunOptions(
-                systems=names,
-                trials=trials,
-                seed=s,
-                out=out,
-                resume=resume,
-                workers=workers,
-                executor=executor,
-                ray_address=ray_address,
-                results_root=results,
-                config_overrides=overrides,
-            )
-            _run_one(scenario, options, execute)
+        for setting_name in setting_list:
+            for s in seed_list:
+                options = RunOptions(
+                    systems=names,
+                    trials=trials,
+                    seed=s,
+                    out=out,
+                    resume=resume,
+                    workers=workers,
+                    executor=executor,
+                    ray_address=ray_address,
+                    results_root=results,
+                    config_overrides=overrides,
+                    setting=setting_name,
+                    protocol=protocol,
+                )
+                _run_one(scenario, options, execute)
 
 
 def _read_overrides(path: Path, names: list[str]) -> dict:

@@ -10,13 +10,16 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pydantic import BaseModel
 
 from navtopo.follower import FollowerConfig, PathFollower
+from navtopo.types import MEMORY_PARTS
 from runners.metrics import edge_errors, stats_ms
+from runners.protocol import TrialProtocol
 from runners.results import RunDir, disk_bytes, write_json
 from runners.sim import MAPPING_STREAM, Simulator
 from runners.systems import GroundTruth, SystemContext, SystemEntry
@@ -39,13 +42,33 @@ class MappingSystem:
     config: BaseModel
 
 
-def context_for(entry: SystemEntry, scenario: Scenario, sim: Simulator | None) -> SystemContext:
+def context_for(
+    entry: SystemEntry, scenario: Scenario, sim: Simulator | None, protocol: TrialProtocol | None = None
+) -> SystemContext:
+    """What a system is told: the robot, the sensor, the stop tolerance; ground truth only if the
+    entry is privileged (the oracle), with the world of the stage the simulator runs."""
+    protocol = protocol or TrialProtocol()
     truth = None
     if entry.privileged:
-        truth = GroundTruth(
-            world=scenario.world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None
-        )
-    return SystemContext(robot=scenario.spec.robot, sensor=scenario.spec.sensor, ground_truth=truth)
+        world = scenario.world
+        if sim is not None and getattr(sim, "with_changes", False):
+            world = scenario.navigation_world
+        truth = GroundTruth(world=world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None)
+    return SystemContext(
+        robot=scenario.spec.robot, sensor=scenario.spec.sensor, stop_tolerance=protocol.stop_tolerance, ground_truth=truth
+    )
+
+
+def disk_report(entry: SystemEntry, map_dir: Path) -> dict[str, Any]:
+    """Bytes of a saved map on disk: the whole folder, and per memory part where the system says
+    which file is which (``disk_usage``); files of no part (e.g. mapping state kept for later
+    re-optimisation) count under ``other``."""
+    total = disk_bytes(map_dir)
+    usage = getattr(entry.cls, "disk_usage", None)
+    parts = dict(usage(map_dir)) if usage is not None else {"map": total}
+    disk = {part: int(parts.get(part, 0)) for part in MEMORY_PARTS}
+    disk["other"] = total - sum(v for k, v in parts.items() if k in MEMORY_PARTS and k != "model")
+    return {"disk_bytes": total, "disk": disk}
 
 
 def run_mapping(
@@ -116,6 +139,7 @@ def run_mapping(
         else:
             raise RouteError(f"mapping route not completed within {max_ticks} ticks")
         reports: dict[str, dict[str, Any]] = {}
+        entries = {s.entry.name: s.entry for s in systems}
         for name, system in instances.items():
             map_dir = run.map_dir(name)
             if name not in failures:
@@ -136,9 +160,13 @@ def run_mapping(
                 "collisions": sim.collisions,
                 "ms_per_scan": {k: v for k, v in stats_ms(observe_ms[name]).items() if k in ("median", "p95", "mean", "max")},
                 "map_bytes": int(stats.pop("map_bytes", 0)),
-                "map_disk_bytes": disk_bytes(map_dir),
                 "growth": growth[name],
             }
+            memory = getattr(system, "memory", None)
+            if memory is not None:
+                report["memory"] = memory().as_dict()
+            disk = disk_report(entries[name], map_dir)
+            report["map_disk_bytes"], report["map_disk"] = disk["disk_bytes"], disk["disk"]
             stamped_edges = stats.pop("edges_stamped", None)
             if stamped_edges is not None:
                 report["edge_error"] = edge_errors(stamped_edges, true_at_stamp)

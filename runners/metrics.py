@@ -8,7 +8,13 @@ Reference path: the any-angle ground-truth shortest path from start to goal on t
 * travelled: length of the true 2D trajectory sampled at every simulation tick.
 * efficiency: shortest / max(shortest, travelled) per successful trial; mean over successes.
 * SPL: success × shortest / max(shortest, travelled); mean over all trials.
-* planning time: wall clock of each planning call, in ms.
+* planning time: wall clock of each planning call, in ms: every call (``planning_ms``), the first
+  full start-to-goal plan of each trial (``first_plan_ms``), and loading the map with everything
+  precomputed before the first plan (``map_load_ms``), each reported on its own.
+* memory: one breakdown for every system (``navtopo.types.MemoryBreakdown``: map, localization,
+  derived, model, total; exact bytes), the saved map on disk (all, and per part), RSS growth of a
+  fresh worker from before loading the map to after the first plan, and its whole RSS then.
+* tracking error: distance between a system's own map-frame pose estimate and the truth, per tick.
 Figures that are undefined (no successes, no planning calls) are ``None`` (JSON null), never NaN.
 """
 
@@ -20,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from navtopo import geometry as se2
+from navtopo.types import MEMORY_PARTS
 
 GOAL_TOLERANCE_M = 0.5
 TIMEOUT_FACTOR = 3.0
@@ -29,7 +36,27 @@ STUCK_DISTANCE_M = 0.1
 
 
 def timeout_s(shortest_m: float, max_linear: float) -> float:
+    """Simulated seconds a trial may take: 3x the shortest path at full speed, plus 60 s."""
     return TIMEOUT_FACTOR * shortest_m / max_linear + TIMEOUT_EXTRA_S
+
+
+ENDINGS = ("reached", "failed", "timeout", "collision", "stuck")
+
+
+def judge(ending: str, final_distance_m: float, goal_tolerance: float = GOAL_TOLERANCE_M, failure: str = "") -> tuple[bool, str]:
+    """The STOP rule: (success, reason) of a trial that ended with ``ending`` (one of ``ENDINGS``).
+
+    Only a system's own "reached" can succeed, and only with the robot's true position within
+    ``goal_tolerance`` of the goal (else ``reached_wrong_place``); the runner never ends a trial
+    because the robot happens to pass the goal. ``failure`` is a failed system's own reason.
+    """
+    if ending not in ENDINGS:
+        raise ValueError(f"unknown trial ending {ending!r}")
+    if ending == "reached":
+        return (True, "") if final_distance_m <= goal_tolerance else (False, "reached_wrong_place")
+    if ending == "failed":
+        return False, failure or "failed"
+    return False, ending
 
 
 def trajectory_length(trajectory: NDArray) -> float:
@@ -56,31 +83,91 @@ def stats_ms(values: list[float] | NDArray) -> dict[str, float | int | None]:
     }
 
 
+def tracking_stats(errors: list[float] | None) -> dict[str, float] | None:
+    """median, p95, max and final of a trial's tracking errors (m); None without an estimate."""
+    if not errors:
+        return None
+    v = np.asarray(errors, dtype=np.float64)
+    return {
+        "median": round(float(np.median(v)), 4),
+        "p95": round(float(np.percentile(v, 95)), 4),
+        "max": round(float(v.max()), 4),
+        "final": round(float(v[-1]), 4),
+    }
+
+
 def _mean_or_none(values: list[float]) -> float | None:
     return round(float(np.mean(values)), 6) if values else None
 
 
 def summarize(
-    records: list[dict[str, Any]], planning_ms: dict[str, list[float]], memory: dict[str, dict], mapping: dict[str, dict]
+    records: list[dict[str, Any]], mapping: dict[str, dict], navigation: dict[str, dict] | None = None
 ) -> dict[str, Any]:
-    """summary.json: keyed by system name only."""
+    """summary.json: keyed by system name only.
+
+    records: trials.jsonl; mapping: ``mapping/<system>.json``; navigation: ``navigation/<system>.json``
+    (the worker's load time, RSS and memory breakdown at the first plan, the saved map's disk bytes).
+    Planning statistics are over every call of every trial; ``first_plan_ms`` over the trials'
+    first plans. The memory parts are the largest each reached at any trial's end or at the first
+    plan (caches grow while a system runs); the tracking error is the median over trials of each
+    trial's median and p95, and the largest error seen.
+    """
+    navigation = navigation or {}
     systems = sorted({r["system"] for r in records} | set(mapping))
     out: dict[str, Any] = {}
     for name in systems:
         mine = [r for r in records if r["system"] == name]
         successes = [r for r in mine if r["success"]]
+        nav = navigation.get(name) or {}
         out[name] = {
             "trials": len(mine),
             "successes": len(successes),
             "success_rate": round(len(successes) / len(mine), 6) if mine else None,
             "efficiency_mean": _mean_or_none([r["efficiency"] for r in successes]),
+            "efficiency_to_goal_mean": _mean_or_none(
+                [r["efficiency_to_goal"] for r in successes if r.get("efficiency_to_goal") is not None]
+            ),
             "spl_mean": _mean_or_none([r["spl"] for r in mine]),
-            "planning_ms": stats_ms(planning_ms.get(name, [])),
-            "memory": memory.get(name, {"map_bytes": None, "disk_bytes": None, "rss_bytes": None}),
+            "planning_ms": stats_ms([v for r in mine for v in r.get("planning_ms_samples", [])]),
+            "first_plan_ms": stats_ms([r["first_plan_ms"] for r in mine if r.get("first_plan_ms") is not None]),
+            "map_load_ms": nav.get("map_load_ms"),
+            "memory": memory_summary(mine, mapping.get(name) or {}, nav),
+            "tracking_error_m": _tracking_summary([r["tracking_error_m"] for r in mine if r.get("tracking_error_m")]),
             "mapping_ms_per_scan": (mapping.get(name) or {}).get("ms_per_scan"),
             "failure_reasons": _count([r["reason"] for r in mine if not r["success"]]),
         }
     return out
+
+
+def memory_summary(records: list[dict[str, Any]], mapping: dict[str, Any], navigation: dict[str, Any]) -> dict[str, Any]:
+    """One system's memory figures: the breakdown's parts (exact bytes), the saved map on disk (all
+    and per part), RSS growth and the worker's whole RSS after the first plan."""
+    breakdowns = [r["memory"] for r in records if r.get("memory")]
+    if navigation.get("memory"):
+        breakdowns.append(navigation["memory"])
+    parts: dict[str, int | None] = {part: None for part in (*MEMORY_PARTS, "total")}
+    if breakdowns:
+        parts = {part: max(int(b.get(part, 0)) for b in breakdowns) for part in (*MEMORY_PARTS, "total")}
+    return {
+        "map_bytes": mapping.get("map_bytes"),
+        "disk_bytes": navigation.get("disk_bytes", mapping.get("map_disk_bytes")),
+        "rss_bytes": navigation.get("rss_bytes"),
+        "rss_process_bytes": navigation.get("rss_process_bytes"),
+        "loaded_map_bytes": navigation.get("map_bytes"),
+        **parts,
+        "disk": navigation.get("disk", mapping.get("map_disk")),
+    }
+
+
+def _tracking_summary(per_trial: list[dict[str, float]]) -> dict[str, float] | None:
+    if not per_trial:
+        return None
+    return {
+        "median": round(float(np.median([t["median"] for t in per_trial])), 4),
+        "p95": round(float(np.median([t["p95"] for t in per_trial])), 4),
+        "max": round(float(max(t["max"] for t in per_trial)), 4),
+        "final_median": round(float(np.median([t["final"] for t in per_trial])), 4),
+    }
 
 
 def _count(values: list[str]) -> dict[str, int]:
@@ -121,8 +208,16 @@ def trial_record(
     sim_time_s: float = 0.0,
     compute_s: float = 0.0,
     planning_ms: list[float] | None = None,
+    first_plan_ms: float | None = None,
+    tracking_error_m: list[float] | None = None,
+    initial_pose_error: NDArray | None = None,
+    memory: dict[str, int] | None = None,
 ) -> dict[str, Any]:
-    """One line of trials.jsonl (the contract's keys, plus planning samples and extras)."""
+    """One line of trials.jsonl (the contract's keys, plus planning samples and extras).
+
+    tracking_error_m: the distance between the system's own pose estimate and the truth at every
+    tick (systems with a map-frame estimate only); initial_pose_error: the protocol's error
+    [dx, dy, dyaw] added to the initial pose the system was given (None: it was given none)."""
     eff = efficiency(trial.shortest_m, travelled_m) if success else None
     to_goal = None
     if success and final_distance_m is not None:
@@ -146,6 +241,18 @@ def trial_record(
         "compute_s": round(compute_s, 4),
         "planning_ms": stats_ms(samples),
         "planning_ms_samples": [round(v, 4) for v in samples],
+        "first_plan_ms": round(float(first_plan_ms), 4) if first_plan_ms is not None else None,
+        "tracking_error_m": tracking_stats(tracking_error_m),
+        "initial_pose_error": (
+            None
+            if initial_pose_error is None
+            else [
+                round(float(initial_pose_error[0]), 4),
+                round(float(initial_pose_error[1]), 4),
+                round(float(np.degrees(initial_pose_error[2])), 3),
+            ]
+        ),
+        "memory": memory,
         "final_distance_m": round(final_distance_m, 4) if final_distance_m is not None else None,
         "seed": seed,
     }

@@ -1,11 +1,15 @@
 """Stage 2: in a fresh worker process, load one system's saved map and run trials in order.
 
-Per trial: the robot is placed at the start (scenario frame); the system gets the goal in the
-map frame (and, if its entry asks, the initial pose); the loop observes, asks the system for a
+Per trial: the robot is placed at the start (scenario frame); the system forgets the previous
+trial (``reset``), gets the goal in the map frame (and, if its entry asks, the initial pose with
+the protocol's seeded error, ``runners.protocol``); the loop observes, asks the system for a
 command and moves the robot until the system declares reached or failed, the robot collides,
-gets stuck or times out. Any exception inside a trial is recorded with its reason and the next
-trial runs. The worker appends each finished record to ``trials.jsonl`` itself (so an interrupted
-run loses no finished trial) when it shares the run folder, and returns the records either way.
+gets stuck or times out. The worker times the map's loading (``map_load_ms``), measures RSS and
+the system's memory breakdown right after its first plan, and the tracking error of the system's
+own pose estimate (where it has one) against the truth at every tick. Any exception inside a
+trial is recorded with its reason and the next trial runs. The worker appends each finished
+record to ``trials.jsonl`` itself (so an interrupted run loses no finished trial) when it shares
+the run folder, and returns the records either way.
 """
 
 from __future__ import annotations
@@ -22,9 +26,10 @@ import numpy as np
 import psutil
 
 from navtopo import geometry as se2
-from runners.mapping import context_for
-from runners.metrics import GOAL_TOLERANCE_M, STUCK_DISTANCE_M, STUCK_WINDOW_S, timeout_s, trajectory_length, trial_record
-from runners.results import RunDir, disk_bytes, write_json, write_tum
+from runners.mapping import context_for, disk_report
+from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, judge, timeout_s, trajectory_length, trial_record
+from runners.protocol import TrialProtocol, apply_setting
+from runners.results import RunDir, write_json, write_tum
 from runners.sim import TRIAL_STREAM, Simulator
 from runners.systems import Status, get_system
 from scenarios import Scenario, load_scenario
@@ -40,6 +45,8 @@ class TrialJob:
     seed: int
     run_dir: str | None = None  # write records and trajectories there as trials finish
     measure_memory: bool = True
+    setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own
+    protocol: dict[str, Any] = field(default_factory=lambda: TrialProtocol().as_json())
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -47,12 +54,30 @@ def _rss() -> int:
     return int(psutil.Process().memory_info().rss)
 
 
+@dataclass
+class FirstPlan:
+    """What the worker measures once, right after the system's first plan (DESIGN.md, memory)."""
+
+    rss_bytes: int | None = None  # growth from before the map was loaded
+    rss_process_bytes: int | None = None  # the whole worker
+    memory: dict[str, int] | None = None  # the system's breakdown at that moment
+
+    def seen(self) -> bool:
+        return self.rss_process_bytes is not None
+
+
+def _memory(system) -> dict[str, int] | None:
+    memory = getattr(system, "memory", None)
+    return memory().as_dict() if memory is not None else None
+
+
 def run_trial_job(job: TrialJob) -> dict[str, Any]:
     """Entry point of a worker process (picklable arguments, JSON-able result)."""
-    scenario = load_scenario(job.scenario)
+    scenario = apply_setting(load_scenario(job.scenario), job.setting)
+    protocol = TrialProtocol.from_json(job.protocol)
     entry = get_system(job.system)
     config = entry.config_model.model_validate(job.config)
-    sim = Simulator(scenario, seed=job.seed)
+    sim = Simulator(scenario, seed=job.seed, **_navigation_stage(scenario))
     run = RunDir(Path(job.run_dir)) if job.run_dir else None
     records: list[dict[str, Any]] = []
     memory: dict[str, Any] = {}
@@ -62,12 +87,16 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
             warm_up()  # compiled kernels load (or compile) here, not inside the first plan
         gc.collect()
         rss_before = _rss()
-        context = context_for(entry, scenario, sim)
+        context = context_for(entry, scenario, sim, protocol)
+        t0 = time.perf_counter()
         system = entry.load(Path(job.map_dir), config, context)
-        first_plan_rss: list[int] = []
+        map_load_ms = (time.perf_counter() - t0) * 1e3
+        first = FirstPlan()
         for index in job.trials:
             trial = scenario.trials[index]
-            record, rows, estimate = run_one_trial(scenario, sim, entry, system, trial, index, job.seed, first_plan_rss)
+            record, rows, estimate = run_one_trial(
+                scenario, sim, entry, system, trial, index, job.seed, protocol, first, rss_before
+            )
             records.append(record)
             if run is not None:
                 write_tum(run.trajectory_path(job.system, index), rows)
@@ -77,20 +106,44 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
         stats = system.stats()
         memory = {
             "map_bytes": int(stats.get("map_bytes", 0)),
-            "rss_bytes": (first_plan_rss[0] - rss_before) if first_plan_rss else None,
+            "map_load_ms": round(map_load_ms, 3),
+            "rss_bytes": first.rss_bytes,
+            "rss_process_bytes": first.rss_process_bytes,
             "rss_before_load": rss_before,
+            "memory": first.memory,
         }
         if run is not None and job.measure_memory:
             write_json(
                 run.root / "navigation" / f"{job.system}.json",
-                {**memory, "disk_bytes": disk_bytes(Path(job.map_dir))},
+                {**memory, **disk_report(entry, Path(job.map_dir))},
             )
     finally:
         sim.close()
     return {"system": job.system, "records": records, "memory": memory}
 
 
-def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, index: int, seed: int, first_plan_rss: list[int]):
+def _navigation_stage(scenario: Scenario) -> dict[str, Any]:
+    """Simulator options of the navigation stage: obstacles that appear only now (``world.changes``)."""
+    import inspect
+
+    return {"with_changes": True} if "with_changes" in inspect.signature(Simulator).parameters else {}
+
+
+def run_one_trial(
+    scenario: Scenario,
+    sim: Simulator,
+    entry,
+    system,
+    trial,
+    index: int,
+    seed: int,
+    protocol: TrialProtocol | None = None,
+    first: FirstPlan | None = None,
+    rss_before: int = 0,
+):
+    """One trial in this worker: (record, true trajectory rows, estimate rows or None)."""
+    protocol = protocol or TrialProtocol()
+    first = first or FirstPlan()
     robot = scenario.spec.robot
     world_from_map = scenario.route_start
     sim.reset(trial.start, stream=(TRIAL_STREAM, index))
@@ -98,11 +151,19 @@ def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, inde
     reason = ""
     success = False
     planning_ms: list[float] = []
+    first_plan_ms: float | None = None
     estimate_rows: list[tuple[float, float, float, float]] = []
+    tracking: list[float] = []
+    initial_error = None
     compute_s = 0.0
     try:
+        reset = getattr(system, "reset", None)
+        if reset is not None:
+            reset()  # nothing of the previous trial in this worker carries over
         if entry.wants_initial_pose:
-            system.set_initial_pose(se2.between(world_from_map, trial.start))
+            true_start = se2.between(world_from_map, trial.start)
+            initial_error = protocol.initial_pose_error(seed, index)
+            system.set_initial_pose(protocol.given_initial_pose(true_start, seed, index))
         goal_map = se2.transform_points(se2.inverse(world_from_map), trial.goal[None, :])[0]
         t0 = time.perf_counter()
         system.set_goal(goal_map)
@@ -113,33 +174,38 @@ def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, inde
             t0 = time.perf_counter()
             command = system.step(obs)
             compute_s += time.perf_counter() - t0
-            if not first_plan_rss and system.stats().get("planning_ms"):  # checked only until the first plan
-                first_plan_rss.append(_rss())
+            if not first.seen() and system.stats().get("planning_ms"):  # checked only until the first plan
+                process = _rss()
+                first.rss_process_bytes, first.rss_bytes = process, process - rss_before
+                first.memory = _memory(system)
             estimate = getattr(system, "pose_estimate", lambda: None)()
             if estimate is not None:
-                estimate_rows.append((obs.stamp, *np.asarray(estimate, float)))
+                estimate = np.asarray(estimate, float)
+                estimate_rows.append((obs.stamp, *estimate))
+                tracking.append(se2.distance(se2.compose(world_from_map, estimate), sim.true_pose))
             status = system.status
+            ending = ""
             if status.state == Status.REACHED:
-                distance = float(np.hypot(*(sim.true_pose[:2] - trial.goal)))
-                success = distance <= GOAL_TOLERANCE_M
-                reason = "" if success else "reached_wrong_place"
+                ending = "reached"
+            elif status.state == Status.FAILED:
+                ending = "failed"
+            elif sim.time >= limit:
+                ending = "timeout"
+            else:  # the robot moves
+                collided = sim.step(command).collided
+                if collided:
+                    ending = "collision"
+                elif se2.distance(sim.true_pose, last_progress_pose) > STUCK_DISTANCE_M:
+                    last_progress_time, last_progress_pose = sim.time, sim.true_pose
+                elif sim.time - last_progress_time > STUCK_WINDOW_S:
+                    ending = "stuck"
+            if ending:
+                final = float(np.hypot(*(sim.true_pose[:2] - trial.goal)))
+                success, reason = judge(ending, final, protocol.goal_tolerance, status.reason)
                 break
-            if status.state == Status.FAILED:
-                reason = status.reason or "failed"
-                break
-            if sim.time >= limit:
-                reason = "timeout"
-                break
-            result = sim.step(command)
-            if result.collided:
-                reason = "collision"
-                break
-            if se2.distance(sim.true_pose, last_progress_pose) > STUCK_DISTANCE_M:
-                last_progress_time, last_progress_pose = sim.time, sim.true_pose
-            elif sim.time - last_progress_time > STUCK_WINDOW_S:
-                reason = "stuck"
-                break
-        planning_ms = list(system.stats().get("planning_ms", []))
+        stats = system.stats()
+        planning_ms = list(stats.get("planning_ms", []))
+        first_plan_ms = stats.get("first_plan_ms", planning_ms[0] if planning_ms else None)
     except Exception as exc:  # a trial that raises is recorded and the run goes on
         reason = f"error: {type(exc).__name__}: {exc}".splitlines()[0][:300]
         traceback.print_exc()
@@ -157,6 +223,10 @@ def run_one_trial(scenario: Scenario, sim: Simulator, entry, system, trial, inde
         sim_time_s=sim.time,
         compute_s=compute_s,
         planning_ms=planning_ms,
+        first_plan_ms=first_plan_ms,
+        tracking_error_m=tracking,
+        initial_pose_error=initial_error,
+        memory=_memory(system),
     )
     json.dumps(record, allow_nan=False)  # fail here, not in the writer, if a NaN slipped in
     return record, rows, np.asarray(estimate_rows) if estimate_rows else None

@@ -10,7 +10,7 @@ import socket
 import subprocess
 from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ from runners.executors import run_jobs
 from runners.mapping import MappingSystem, run_mapping
 from runners.metrics import summarize, trial_record
 from runners.navigation import TrialJob, run_trial_job
+from runners.protocol import TrialProtocol, apply_setting, setting_of
 from runners.results import RunDir, TrialsTail, point_latest, read_json, write_json
 from runners.systems import get_system
 from scenarios import Scenario
@@ -40,6 +41,8 @@ class RunOptions:
     ray_address: str | None = None
     results_root: Path = Path("results")
     config_overrides: dict[str, Any] | None = None  # {system: {key: value, ...}} merged over the defaults
+    setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own noise
+    protocol: TrialProtocol = field(default_factory=TrialProtocol)
 
 
 def git_revision() -> str | None:
@@ -111,11 +114,12 @@ def new_run_dir(options: RunOptions, scenario: Scenario, seed: int) -> RunDir:
     if options.out is not None:
         return RunDir(options.out)
     stamp = dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    root = options.results_root / scenario.name / f"{stamp}-s{seed}"
+    base = f"{stamp}-s{seed}" + (f"-{options.setting}" if options.setting else "")
+    root = options.results_root / scenario.name / base
     suffix = 1
     while root.exists():
         suffix += 1
-        root = options.results_root / scenario.name / f"{stamp}-s{seed}-{suffix}"
+        root = options.results_root / scenario.name / f"{base}-{suffix}"
     return RunDir(root)
 
 
@@ -138,11 +142,17 @@ def execute(
         seed = int(manifest["seed"])
         trial_count = manifest.get("trial_count")
         configs = manifest["config"]
+        protocol = TrialProtocol.from_json(manifest.get("protocol"))
+        setting_override = manifest.get("setting_override")
+        scenario = apply_setting(scenario, setting_override)
     else:
         systems = options.systems
         seed = scenario.spec.seed if options.seed is None else options.seed
         trial_count = len(scenario.trials) if options.trials is None else min(options.trials, len(scenario.trials))
         configs = resolved_configs(systems, options.config_overrides)
+        protocol = options.protocol
+        setting_override = options.setting
+        scenario = apply_setting(scenario, setting_override)
         run = new_run_dir(options, scenario, seed)
         run.root.mkdir(parents=True, exist_ok=True)
         write_json(
@@ -152,6 +162,11 @@ def execute(
                 "scenario_sha256": scenario_fingerprint(scenario),
                 "systems": systems,
                 "seed": seed,
+                "setting": setting_of(scenario),
+                "setting_override": setting_override,
+                "odometry_noise": scenario.spec.odometry.noise.model_dump() if scenario.spec.odometry.noise else None,
+                "range_noise": scenario.spec.sensor.range_noise,
+                "protocol": protocol.as_json(),
                 "trial_count": trial_count,
                 "config": configs,
                 "versions": versions(),
@@ -205,6 +220,8 @@ def execute(
                     seed=seed,
                     run_dir=str(run.root.resolve()),
                     measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
+                    setting=setting_override,
+                    protocol=protocol.as_json(),
                 )
             )
     run.incomplete = []
@@ -244,18 +261,11 @@ def execute(
 
 def write_summary(run: RunDir, systems: list[str], mapping: dict[str, dict]) -> dict[str, Any]:
     records = run.read_trials()
-    planning = {name: [v for r in records if r["system"] == name for v in r.get("planning_ms_samples", [])] for name in systems}
-    memory = {}
+    navigation = {}
     for name in systems:
         nav_path = run.root / "navigation" / f"{name}.json"
-        nav = read_json(nav_path) if nav_path.is_file() else {}
-        memory[name] = {
-            "map_bytes": mapping.get(name, {}).get("map_bytes"),
-            "disk_bytes": mapping.get(name, {}).get("map_disk_bytes"),
-            "rss_bytes": nav.get("rss_bytes"),
-            "loaded_map_bytes": nav.get("map_bytes"),
-        }
-    summary = summarize(records, planning, memory, mapping)
+        navigation[name] = read_json(nav_path) if nav_path.is_file() else {}
+    summary = summarize(records, mapping, navigation)
     summary = {name: summary.get(name, {}) for name in systems}
     write_json(run.summary_path, summary)
     return summary

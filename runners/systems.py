@@ -6,12 +6,17 @@ through the same calls (DESIGN.md, "The NavigationSystem protocol"):
 mapping:     ``create(config, context)`` → ``observe(obs)`` per scan → ``finish_mapping()`` →
              ``save(directory)``; ``mapping_stats()`` for the mapping report
 navigation:  ``load(directory, config, context)`` in a fresh process → per trial
+             ``reset()`` (optional: forget the previous trial) →
              [``set_initial_pose(pose)`` if the entry ``wants_initial_pose``] → ``set_goal(goal)`` →
              ``step(obs)`` per tick until ``status`` is not active; ``stats()`` after each trial
+memory:      ``memory()`` → ``MemoryBreakdown`` (exact bytes now held: map, localization, derived,
+             model); ``disk_usage(directory)`` (optional static) → bytes of a saved map per part
 
 Frames: goals and initial poses are in the map frame, the frame of the mapping run's first
 odometry pose. Ground truth reaches a system only if its entry is ``privileged`` (the oracle);
-it then comes as ``context.ground_truth``.
+it then comes as ``context.ground_truth``. The initial pose a system is given carries the
+protocol's seeded error (``runners.protocol``); every system that declares ``reached`` by its
+own estimate stops within ``context.stop_tolerance`` of the goal by that estimate.
 """
 
 from __future__ import annotations
@@ -30,12 +35,13 @@ from pydantic import BaseModel, ConfigDict
 from navtopo import geometry as se2
 from navtopo import grid_search
 from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.types import Command, NavStatus, Observation, Status
+from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 from scenarios.schema import RobotSpec, SensorSpec
 
 __all__ = [
     "Command",
     "GroundTruth",
+    "MemoryBreakdown",
     "NavStatus",
     "NavigationSystem",
     "Observation",
@@ -63,6 +69,7 @@ class SystemContext:
 
     robot: RobotSpec
     sensor: SensorSpec
+    stop_tolerance: float = 0.35  # m: declare "reached" within this of the goal, by the own estimate
     ground_truth: GroundTruth | None = None
 
 
@@ -77,6 +84,7 @@ class NavigationSystem(Protocol):
     def step(self, obs: Observation) -> Command: ...
     def stats(self) -> dict[str, Any]: ...
     def mapping_stats(self) -> dict[str, Any]: ...
+    def memory(self) -> MemoryBreakdown: ...
 
 
 @dataclass
@@ -106,37 +114,46 @@ def register_system(
 ) -> Callable[[type], type]:
     def decorate(cls: type) -> type:
         _REGISTRY[name] = SystemEntry(
-            name, cls, config, privileged, wants_initial_pose, description or (cls.__doc__ or "").strip().splitlines()[0]
+            name,
+            cls,
+            config,
+            privileged,
+            wants_initial_pose,
+            description or ((cls.__doc__ or "").strip().splitlines() or [""])[0],
         )
         return cls
 
     return decorate
 
 
-def _load_builtin() -> None:
-    """Register the systems of the lower layers: they never import the runner (DESIGN.md), so the
-    registry names them here."""
-    if "navtopo" not in _REGISTRY:
-        from navtopo.system import NavTopo, NavTopoConfig
+# Systems of the lower layers: they never import the runner (DESIGN.md), so the registry names them
+# here, and imports each only when it is asked for: a worker running the baseline never loads
+# NavTopo's torch runtime, so its process RSS is its own.
+_BUILTIN: dict[str, tuple[str, str, str, dict[str, Any]]] = {
+    "navtopo": (
+        "navtopo.system",
+        "NavTopo",
+        "NavTopoConfig",
+        {"description": "NavTopo: graph of locations (PRISM-TopoMap), place recognition, scan matching"},
+    ),
+    "metric_grid": (
+        "baselines.metric_grid.system",
+        "MetricGrid",
+        "MetricGridConfig",
+        {"wants_initial_pose": True, "description": "kiss-icp + gtsam pose graph + global 0.1 m occupancy grid + Theta*"},
+    ),
+}
 
-        register_system(
-            "navtopo",
-            config=NavTopoConfig,
-            description="NavTopo: graph of locations (PRISM-TopoMap), place recognition, scan matching",
-        )(NavTopo)
-    if "metric_grid" not in _REGISTRY:
-        try:
-            from baselines.metric_grid.system import MetricGrid, MetricGridConfig
-        except ModuleNotFoundError as exc:  # the baseline lands in its own milestone
-            if exc.name != "baselines.metric_grid.system":
-                raise
-        else:
-            register_system(
-                "metric_grid",
-                config=MetricGridConfig,
-                wants_initial_pose=True,
-                description="kiss-icp + gtsam pose graph + global 0.1 m occupancy grid + Theta*",
-            )(MetricGrid)
+
+def _load_builtin(name: str | None = None) -> None:
+    """Register the built-in system ``name`` (all of them when None) by importing its module."""
+    import importlib
+
+    for builtin, (module, cls_name, config_name, flags) in _BUILTIN.items():
+        if builtin in _REGISTRY or (name is not None and builtin != name):
+            continue
+        loaded = importlib.import_module(module)
+        register_system(builtin, config=getattr(loaded, config_name), **flags)(getattr(loaded, cls_name))
 
 
 def registry() -> dict[str, SystemEntry]:
@@ -144,11 +161,16 @@ def registry() -> dict[str, SystemEntry]:
     return dict(_REGISTRY)
 
 
+def system_names() -> list[str]:
+    """Every system's name, without importing any system's module."""
+    return sorted(set(_REGISTRY) | set(_BUILTIN))
+
+
 def get_system(name: str) -> SystemEntry:
-    systems = registry()
-    if name not in systems:
-        raise KeyError(f"unknown system {name!r} (known: {', '.join(sorted(systems))})")
-    return systems[name]
+    _load_builtin(name)
+    if name not in _REGISTRY:
+        raise KeyError(f"unknown system {name!r} (known: {', '.join(system_names())})")
+    return _REGISTRY[name]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,10 +202,7 @@ class Oracle:
         self.world = context.ground_truth.world
         self.passable_tight = self.world.eroded(context.robot.radius)
         self.passable = self.world.eroded(context.robot.radius + config.clearance_margin)
-        follower_config = config.follower.model_copy(
-            update={"max_linear": context.robot.max_linear, "max_angular": context.robot.max_angular}
-        )
-        self.follower = PathFollower(follower_config)
+        self.follower = PathFollower(config.follower.for_robot(context))
         self.status = NavStatus()
         self.goal_world: NDArray[np.float64] | None = None
         self.planning_ms: list[float] = []
@@ -216,14 +235,23 @@ class Oracle:
         return cls(config, context)
 
     def mapping_stats(self) -> dict[str, Any]:
-        return {"map_bytes": int(self.passable.nbytes)}
+        return {"map_bytes": self.memory().map}
+
+    def memory(self) -> MemoryBreakdown:
+        """The GT raster is the oracle's map; its two eroded copies are derived for planning."""
+        return MemoryBreakdown(map=int(self.world.free.nbytes), derived=int(self.passable.nbytes + self.passable_tight.nbytes))
 
     # navigation
-    def set_goal(self, goal: NDArray[np.float64]) -> None:
-        self.goal_world = se2.transform_points(self.truth.world_from_map, np.asarray(goal, float)[None, :2])[0]
+    def reset(self) -> None:
+        self.goal_world = None
         self.status = NavStatus()
         self.planning_ms = []
         self._planned = False
+        self.follower.clear()
+
+    def set_goal(self, goal: NDArray[np.float64]) -> None:
+        self.reset()
+        self.goal_world = se2.transform_points(self.truth.world_from_map, np.asarray(goal, float)[None, :2])[0]
 
     def _pose(self) -> NDArray[np.float64]:
         assert self.truth.true_pose is not None, "the runner sets true_pose for privileged systems"
@@ -260,7 +288,7 @@ class Oracle:
         return None
 
     def stats(self) -> dict[str, Any]:
-        return {"planning_ms": list(self.planning_ms), "map_bytes": int(self.passable.nbytes)}
+        return {"planning_ms": list(self.planning_ms), "map_bytes": self.memory().map}
 
     def pose_estimate(self) -> NDArray[np.float64] | None:
         return None

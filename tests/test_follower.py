@@ -47,7 +47,7 @@ def test_config_defaults_and_unknown_keys():
         1.0,
         1.5,
         0.6,
-        0.5,
+        0.35,  # the protocol's stop tolerance
     )
     with pytest.raises(ValidationError):
         FollowerConfig(max_speed=2.0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -55,12 +56,13 @@ def test_a_room_traced_from_four_keyframes_has_its_walls_occupied_and_interior_f
     assert np.all(_values_at(grid.to_map(crop=False), beyond) == UNKNOWN)
 
 
-def test_map_server_round_trip_keeps_origin_and_cells(room_map, tmp_path):
+@pytest.mark.parametrize("image_format", ["png", "pgm"])
+def test_map_server_round_trip_keeps_origin_and_cells(room_map, tmp_path, image_format):
     _, grid = room_map
     grid_map = grid.to_map()
-    yaml_path = grid_map.save(tmp_path / "map.yaml")
+    yaml_path = grid_map.save(tmp_path / "map.yaml", image_format=image_format)
     meta = yaml.safe_load(yaml_path.read_text())
-    assert meta["image"] == "map.pgm" and meta["mode"] == "trinary" and meta["negate"] == 0
+    assert meta["image"] == f"map.{image_format}" and meta["mode"] == "trinary" and meta["negate"] == 0
     assert meta["occupied_thresh"] == 0.65 and meta["free_thresh"] == 0.196
     assert meta["origin"] == [*grid_map.origin.tolist(), 0.0]
     loaded = GridMap.load(yaml_path)
@@ -69,9 +71,8 @@ def test_map_server_round_trip_keeps_origin_and_cells(room_map, tmp_path):
     assert loaded.resolution == grid_map.resolution
     assert loaded.nbytes == grid_map.nbytes == grid_map.cells.nbytes + 16 + 8
     # row 0 of the image is the largest y; occupied black, free 254, unknown 205
-    raw = (tmp_path / "map.pgm").read_bytes()
-    height, width = grid_map.cells.shape
-    image = np.frombuffer(raw[-height * width :], np.uint8).reshape(height, width)
+    image = cv2.imread(str(tmp_path / f"map.{image_format}"), cv2.IMREAD_UNCHANGED)
+    assert image.shape == grid_map.cells.shape
     lut = {UNKNOWN: 205, FREE: 254, OCCUPIED: 0}
     assert np.array_equal(image[0], np.vectorize(lut.get)(grid_map.cells[-1]))
 

@@ -91,7 +91,7 @@ def test_half_the_mapping_route_gives_a_grid_whose_walls_match_ground_truth(tiny
 def test_the_saved_map_server_map_loads_back_with_the_same_grid(mapped, context, tmp_path):
     system, directory, _ = mapped
     names = {p.name for p in directory.iterdir()}
-    assert {"map.pgm", "map.yaml", "pose_graph.json", "pose_graph.npz", "metric_grid.json"} <= names
+    assert {"map.png", "map.yaml", "pose_graph.json", "pose_graph.npz", "metric_grid.json"} <= names
     loaded = MetricGrid.load(directory, MetricGridConfig(), context)
     assert np.array_equal(loaded.grid_map.cells, system.grid_map.cells)
     assert np.array_equal(loaded.grid_map.origin, system.grid_map.origin)
@@ -106,8 +106,8 @@ def test_the_saved_map_server_map_loads_back_with_the_same_grid(mapped, context,
         (lambda d: (d / "metric_grid.json").write_text("{not json"), "metric_grid.json"),
         (lambda d: (d / "map.yaml").unlink(), "map.yaml"),
         (lambda d: (d / "map.yaml").write_text("image: [unclosed"), "map.yaml"),
-        (lambda d: (d / "map.pgm").unlink(), "map.pgm"),
-        (lambda d: (d / "map.pgm").write_bytes((d / "map.pgm").read_bytes()[:200]), "map.pgm"),
+        (lambda d: (d / "map.png").unlink(), "map.png"),
+        (lambda d: (d / "map.png").write_bytes((d / "map.png").read_bytes()[:200]), "map.png"),
     ],
 )
 def test_a_damaged_map_folder_fails_with_one_message_naming_the_file(mapped, context, tmp_path, damage, named):
@@ -152,7 +152,7 @@ def test_a_navigation_trial_on_tiny_reaches_the_goal_efficiently(tiny, sim, mapp
     _, directory, _ = mapped
     entry = get_system("metric_grid")
     system = MetricGrid.load(directory, MetricGridConfig(), context)
-    record, rows, estimate = run_one_trial(tiny, sim, entry, system, tiny.trials[0], 0, 0, [])
+    record, rows, estimate = run_one_trial(tiny, sim, entry, system, tiny.trials[0], 0, 0)
     assert record["success"], record["reason"]
     assert record["collisions"] == 0 and record["efficiency"] >= 0.95
     assert record["planning_ms"]["count"] >= 2  # replanned at the fixed rate
@@ -163,30 +163,57 @@ def test_a_navigation_trial_on_tiny_reaches_the_goal_efficiently(tiny, sim, mapp
     assert np.hypot(*(estimate[:, 1:3] - true_in_map[at, :2]).T).max() < 0.1
 
 
-def test_scan_to_map_registration_removes_an_initial_pose_error(tiny, sim, mapped, context):
-    _, directory, _ = mapped
-    system = MetricGrid.load(directory, MetricGridConfig(), context)
-    trial = tiny.trials[0]
+def _localize(system, sim, tiny, trial, given_in_map, ticks=10):
+    """Give ``given_in_map`` as the initial pose, step ``ticks`` times; the estimate and the truth (map frame)."""
     sim.reset(trial.start)
-    true_in_map = se2.between(tiny.route_start, trial.start)
-    system.set_initial_pose(se2.compose(true_in_map, [0.15, -0.1, np.deg2rad(3.0)]))
+    system.reset()
+    system.set_initial_pose(given_in_map)
     system.set_goal(se2.transform_points(se2.inverse(tiny.route_start), trial.goal[None, :])[0])
-    for _ in range(10):
+    truth = se2.between(tiny.route_start, sim.true_pose)
+    for _ in range(ticks):
         truth = se2.between(tiny.route_start, sim.true_pose)  # where the scan is taken
         command = system.step(sim.observe())
         sim.step(command)
-    estimate = system.pose_estimate()
+    return system.pose_estimate(), truth
+
+
+@pytest.mark.parametrize("error", [[0.15, -0.1, 3.0], [0.5, 0.5, 10.0], [-0.5, 0.4, -10.0]])
+def test_a_hand_set_initial_pose_off_by_the_protocols_error_is_corrected_by_registration(tiny, sim, mapped, context, error):
+    """The protocol gives the baseline its start off by up to ±0.5 m and ±10°: the window search
+    and the scan-to-map fit bring the estimate to the truth before it drives far."""
+    _, directory, _ = mapped
+    system = MetricGrid.load(directory, MetricGridConfig(), context)
+    trial = tiny.trials[0]
+    true_in_map = se2.between(tiny.route_start, trial.start)
+    given = true_in_map + np.array([error[0], error[1], np.deg2rad(error[2])])
+    estimate, truth = _localize(system, sim, tiny, trial, given)
     # within the half cell to which a 0.1 m grid knows a wall (here the corridor's end wall,
     # the only structure that fixes the position along it)
     assert se2.distance(estimate, truth) < 0.06
     assert abs(se2.wrap_angle(estimate[2] - truth[2])) < np.deg2rad(0.5)
-    # odometry alone keeps the error it was given
-    blind = MetricGrid.load(directory, MetricGridConfig.model_validate({"localization": {"enabled": False}}), context)
-    sim.reset(trial.start)
-    blind.set_initial_pose(se2.compose(true_in_map, [0.15, -0.1, np.deg2rad(3.0)]))
-    blind.set_goal(np.zeros(2))
-    blind.step(sim.observe())
-    assert se2.distance(blind.pose_estimate(), true_in_map) > 0.15
+    assert system.counters["relocalizations"] >= 1 and system.counters["global_searches"] == 0
+
+
+def test_a_start_far_from_the_given_pose_is_found_by_the_global_search(tiny, sim, mapped, context):
+    _, directory, _ = mapped
+    system = MetricGrid.load(directory, MetricGridConfig(), context)
+    trial = tiny.trials[1]  # starts in the vertical corridor; we claim it is 6 m away in the first one
+    true_in_map = se2.between(tiny.route_start, trial.start)
+    wrong = se2.between(tiny.route_start, np.array([4.0, 0.0, 0.0]))
+    assert se2.distance(wrong, true_in_map) > 5.0
+    estimate, truth = _localize(system, sim, tiny, trial, wrong)
+    assert system.counters["global_searches"] >= 1
+    assert se2.distance(estimate, truth) < 0.1, (estimate, truth)
+
+
+def test_without_registration_the_given_error_stays(tiny, sim, mapped, context):
+    _, directory, _ = mapped
+    config = MetricGridConfig.model_validate({"localization": {"enabled": False}, "relocalization": {"enabled": False}})
+    blind = MetricGrid.load(directory, config, context)
+    trial = tiny.trials[0]
+    true_in_map = se2.between(tiny.route_start, trial.start)
+    estimate, truth = _localize(blind, sim, tiny, trial, se2.compose(true_in_map, [0.15, -0.1, np.deg2rad(3.0)]), ticks=1)
+    assert se2.distance(estimate, truth) > 0.15
 
 
 def test_an_obstacle_missing_from_the_map_is_seen_and_driven_around(tiny, sim, mapped, context, tmp_path):
@@ -211,7 +238,7 @@ def test_an_obstacle_missing_from_the_map_is_seen_and_driven_around(tiny, sim, m
     world_path = se2.transform_points(tiny.route_start, _densify(blind_path))
     near_cabinet = (world_path[:, 0] < 11.45 + tiny.spec.robot.radius) & (np.abs(world_path[:, 1] - 3.0) < 0.5)
     assert near_cabinet.any(), "the test needs a first path that runs into the erased cabinet"
-    record, _, _ = run_one_trial(tiny, sim, get_system("metric_grid"), system, trial, 0, 0, [])
+    record, _, _ = run_one_trial(tiny, sim, get_system("metric_grid"), system, trial, 0, 0)
     assert record["success"] and record["collisions"] == 0, record["reason"]
     assert system.counters["replans_blocked"] >= 1
     assert system.status.state == Status.REACHED

@@ -126,7 +126,7 @@ def test_scenario_show_json_reports_the_contract_keys():
 def test_config_prints_the_resolved_oracle_config():
     result = CliRunner().invoke(app, ["config", "oracle"])
     assert result.exit_code == 0
-    assert "oracle:" in result.stdout and "goal_tolerance: 0.5" in result.stdout
+    assert "oracle:" in result.stdout and "goal_tolerance: 0.35" in result.stdout
 
 
 def test_a_dead_worker_fails_the_trial_it_was_running_and_leaves_the_rest_for_resume(tmp_path, monkeypatch):

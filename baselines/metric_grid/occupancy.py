@@ -13,13 +13,14 @@ Layout: ``cells[row, col]``, ``col`` grows with +x and ``row`` with +y; ``origin
 world position of the lower-left corner of cell (0, 0) (the ROS map origin). Cell values are
 ``navtopo.local_grid``'s: ``UNKNOWN`` 0, ``FREE`` 1, ``OCCUPIED`` 2.
 
-Saved as a ROS map_server map (``map.pgm`` + ``map.yaml``, mode trinary): occupied 0, free 254,
+Saved as a ROS map_server map (``map.png`` + ``map.yaml``, mode trinary): occupied 0, free 254,
 unknown 205, row 0 of the image the largest y, ``negate: 0``, ``occupied_thresh: 0.65``,
 ``free_thresh: 0.196``.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -86,17 +87,28 @@ class GridMap:
         """World centres (N, 2) of the cells where ``mask`` is set."""
         return cell_centres(mask, self.origin, self.resolution)
 
-    def save(self, yaml_path: str | Path) -> Path:
-        """Write ``<name>.pgm`` and ``<name>.yaml`` (map_server, trinary); returns the YAML path."""
+    def save(self, yaml_path: str | Path, image_format: str = "png") -> Path:
+        """Write ``<name>.png`` (or ``.pgm``) and ``<name>.yaml`` (map_server, trinary); returns the
+        YAML path. PNG by default: map_server reads it, and it is the lossless compression NavTopo's
+        location grids are stored with, so both systems' maps on disk compare like for like."""
         yaml_path = Path(yaml_path)
         yaml_path.parent.mkdir(parents=True, exist_ok=True)
-        image_path = yaml_path.with_suffix(".pgm")
+        if image_format not in ("png", "pgm"):
+            raise ValueError(f"image_format must be png or pgm, not {image_format!r}")
+        image_path = yaml_path.with_suffix(f".{image_format}")
         image = np.full(self.cells.shape, PGM_UNKNOWN, np.uint8)
         image[self.cells == FREE] = PGM_FREE
         image[self.cells == OCCUPIED] = PGM_OCCUPIED
-        height, width = image.shape
-        header = f"P5\n# navtopo-bench metric_grid, {self.resolution} m/cell\n{width} {height}\n255\n"
-        image_path.write_bytes(header.encode("ascii") + np.flipud(image).tobytes())
+        rows_down = np.ascontiguousarray(np.flipud(image))
+        if image_format == "png":
+            ok, data = cv2.imencode(".png", rows_down)
+            if not ok:
+                raise ValueError("could not encode the map as PNG")
+            _atomic_write(image_path, data.tobytes())
+        else:
+            height, width = image.shape
+            header = f"P5\n# navtopo-bench metric_grid, {self.resolution} m/cell\n{width} {height}\n255\n"
+            _atomic_write(image_path, header.encode("ascii") + rows_down.tobytes())
         meta = {
             "image": image_path.name,
             "mode": "trinary",
@@ -106,7 +118,7 @@ class GridMap:
             "occupied_thresh": 0.65,
             "free_thresh": 0.196,
         }
-        yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+        _atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode())
         return yaml_path
 
     @classmethod
@@ -128,6 +140,13 @@ class GridMap:
         cells[occupancy < float(meta.get("free_thresh", 0.196))] = FREE
         origin = np.array(meta["origin"][:2], dtype=np.float64)
         return cls(np.ascontiguousarray(np.flipud(cells)), origin, float(meta["resolution"]))
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    """Write through a temporary file and a rename, so a crash leaves no half-written map."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
 
 
 def read_image(path: Path) -> NDArray[np.uint8]:

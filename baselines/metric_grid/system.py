@@ -7,37 +7,32 @@ mapping      odometry (``odometry.LidarOdometry``: wheel, or kiss-icp seeded by 
              keyframes and verified loop closures (``pose_graph.PoseGraph``, gtsam) -> at the end,
              batch optimisation and the global 0.1 m log-odds grid traced from every keyframe at
              its optimised pose (``occupancy.OccupancyGrid``); saved as a ROS map_server map
-             (``map.pgm`` + ``map.yaml``) beside the pose graph and ``metric_grid.json``.
-navigation   as a Nav2 user runs it: the map is loaded, the initial pose given in the map frame;
-             the pose is tracked by odometry composed onto it (the ``map -> odom`` transform),
-             optionally corrected by scan-to-map registration (``ScanToMap``); Theta*
+             (``map.png`` + ``map.yaml``) beside the pose graph and ``metric_grid.json``.
+navigation   as a Nav2 user runs it: the map is loaded and an initial pose given in the map
+             frame, set by hand (off by up to the protocol's ±0.5 m, ±10°); the robot finds its
+             pose on the map by a correlative search around it, or over the whole map when
+             nothing there fits (``localization.Relocalizer``), turning in place until it does;
+             then odometry composed onto it (the ``map -> odom`` transform) is corrected by
+             scan-to-map registration at every scan (``localization.ScanToMap``); Theta*
              (``navtopo.grid_search``, the compiled kernel NavTopo's local planner uses) on the
              map's free cells eroded by the robot radius plus a margin, unknown cells blocked;
              replanning at a fixed rate and when newly seen obstacles block the path; the shared
-             ``PathFollower`` drives.
+             ``PathFollower`` drives and stops at the protocol's stop tolerance.
 
-Scan-to-map registration is a likelihood-field fit (Thrun, Burgard & Fox, "Probabilistic
-Robotics", 2005, Sec. 6.4) solved by Gauss-Newton on the distance field of the map's occupied
-cells, with bilinear interpolation and its analytic gradient (the map-gradient matcher of
-Kohlbrecher et al., "A Flexible and Scalable SLAM System with Full 3D Motion Estimation", SSRR
-2011), a Huber kernel, and the odometry prediction as a prior, so that the direction along a
-bare corridor stays where odometry put it.
-
-Memory is reported as the design asks: ``map_bytes`` is the navigation map (the trinary grid as
-it is loaded); the mapping state (keyframe scans, kiss-icp local map, pose graph, log-odds grid)
-comes as separate keys of ``mapping_stats()``.
+Memory (``memory()``, the runner's breakdown): ``map`` is the trinary grid as loaded,
+``localization`` the distance field of the scan-to-map fit and the relocalizer's score field,
+``derived`` the eroded planning masks; the mapping state (keyframe scans, kiss-icp local map, pose
+graph, log-odds grid) comes as separate keys of ``mapping_stats()``.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import time
 from collections import deque
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
@@ -47,8 +42,9 @@ from navtopo import geometry as se2
 from navtopo import grid_search
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.local_grid import FREE, OCCUPIED, GridConfig, obstacle_points
-from navtopo.types import Command, NavStatus, Observation, Status
+from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 
+from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMapConfig
 from .occupancy import GridMap, OccupancyConfig, OccupancyGrid
 from .odometry import LidarOdometry, OdometryConfig
 from .pose_graph import PoseGraph, PoseGraphConfig
@@ -73,30 +69,6 @@ class ScanConfig(BaseModel):
 
     def grid_config(self) -> GridConfig:
         return GridConfig(floor_height=self.floor_height, ceiling_height=self.ceiling_height)
-
-
-class ScanToMapConfig(BaseModel):
-    """Scan-to-map registration during navigation (likelihood field, Gauss-Newton)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    enabled: bool = Field(True, description="correct the odometry by registering each scan to the map")
-    every_scans: int = Field(1, ge=1, description="register every n-th scan")
-    voxel: float = Field(0.1, gt=0, description="m; 2D voxel filter of the scan's obstacle points")
-    max_range: float = Field(12.0, gt=0, description="m; only nearer points are registered")
-    min_points: int = Field(80, description="fewer points: keep the odometry")
-    iterations: int = Field(10, ge=1)
-    huber: float = Field(0.05, gt=0, description="m; residuals above it are down-weighted")
-    max_residual: float = Field(0.4, gt=0, description="m; points farther from any mapped wall are ignored")
-    residual_sigma: float = Field(0.05, gt=0, description="m; the noise of one point's residual")
-    prior_sigma_xy: float = Field(0.1, gt=0, description="m; trust in the odometry prediction per update")
-    prior_sigma_yaw_deg: float = Field(2.0, gt=0, description="deg; likewise for the heading")
-    inlier_distance: float = Field(0.1, gt=0, description="m; a point this close to a mapped wall fits")
-    min_inlier_share: float = Field(0.6, ge=0, le=1, description="fewer fitting points: reject the fit")
-    max_correction: float = Field(0.5, gt=0, description="m; larger corrections are rejected")
-    max_correction_yaw_deg: float = Field(10.0, gt=0)
-    distance_cap: float = Field(2.0, gt=0, description="m; the distance field saturates here")
-    wall_depth: float = Field(0.025, description="m inside the mapped occupied cells' boundary where walls lie, on average")
 
 
 class PlanningConfig(BaseModel):
@@ -149,8 +121,9 @@ class MetricGridConfig(BaseModel):
       map (AMCL in Nav2, RTAB-MAP's localisation mode). With noisy odometry it is what makes trials
       succeed (tracking error 0.17 m median -> 5 mm on ``tiny``); with precise odometry it costs a
       few centimetres where the map itself is off (a 0.1 m grid knows a wall to half a cell).
-    * ``follower.goal_tolerance: 0.35``: the robot stops 0.25-0.35 m from the goal by its own
-      estimate, so a few centimetres of tracking error cannot put it beyond the runner's 0.5 m.
+    * ``follower.goal_tolerance``: the protocol's stop tolerance (0.35 m, the same for every system
+      that stops by its own estimate), so a few centimetres of tracking error cannot put the robot
+      beyond the runner's 0.5 m.
 
     ``odometry.max_range`` and ``occupancy.max_range`` follow the sensor, the follower's speed limits
     follow the robot: they are filled in from the context in ``create``/``load``, in one place.
@@ -164,8 +137,9 @@ class MetricGridConfig(BaseModel):
     scan: ScanConfig = ScanConfig()
     online_grid: bool = Field(True, description="keep a grid up to date while mapping (for the growth figures)")
     localization: ScanToMapConfig = ScanToMapConfig()
+    relocalization: RelocalizationConfig = RelocalizationConfig()
     planning: PlanningConfig = PlanningConfig()
-    follower: FollowerConfig = FollowerConfig(goal_tolerance=0.35)
+    follower: FollowerConfig = FollowerConfig()
 
     @classmethod
     def for_noisy_odometry(cls) -> MetricGridConfig:
@@ -174,113 +148,21 @@ class MetricGridConfig(BaseModel):
 
 
 def _for_context(config: MetricGridConfig, context: Any) -> MetricGridConfig:
-    """The config with the sensor's range and the robot's speed limits filled in."""
+    """The config with the sensor's range, the robot's speed limits and the stop tolerance filled in."""
     if context is None:
         return config
-    sensor, robot = context.sensor, context.robot
+    sensor = context.sensor
     return config.model_copy(
         update={
             "odometry": config.odometry.model_copy(update={"max_range": float(sensor.max_range)}),
             "occupancy": config.occupancy.model_copy(update={"max_range": float(sensor.max_range)}),
-            "follower": config.follower.model_copy(
-                update={"max_linear": float(robot.max_linear), "max_angular": float(robot.max_angular)}
-            ),
+            "follower": config.follower.for_robot(context),
         }
     )
 
 
 class MapLoadError(ValueError):
     """A saved metric map that cannot be loaded; the message names the file."""
-
-
-# ---------------------------------------------------------------------------------------------
-# scan-to-map registration
-
-
-class ScanToMap:
-    """Fits 2D obstacle points to the signed distance field of a grid's occupied cells.
-
-    distance[row, col] float32: metres from each cell centre to the expected wall surface
-    (``wall_depth`` inside the boundary of the occupied cells), negative inside it.
-    """
-
-    def __init__(self, grid: GridMap, config: ScanToMapConfig) -> None:
-        self.config = config
-        self.origin = grid.origin.astype(np.float64)
-        self.resolution = float(grid.resolution)
-        occupied = grid.cells == OCCUPIED
-        res = self.resolution
-        # Signed: + outside the occupied cells, - inside, zero ``wall_depth`` inside their boundary,
-        # where the true wall surface lies on average. A cell is occupied when a return falls
-        # anywhere in it, so the mapped boundary stands in front of the surface; fitting to the
-        # boundary (or to the occupied cell centres) left 2-3 cm of bias on ``tiny``, a quarter
-        # cell 3.5 mm.
-        outside = cv2.distanceTransform((~occupied).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * res
-        inside = cv2.distanceTransform(occupied.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * res
-        signed = np.where(occupied, -(inside - res / 2), outside - res / 2) + config.wall_depth
-        self.distance = np.clip(signed, -config.distance_cap, config.distance_cap).astype(np.float32)
-
-    @property
-    def nbytes(self) -> int:
-        return int(self.distance.nbytes)
-
-    def sample(self, xy: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-        """Distance (N,) and its gradient (N,) x2 at map points xy (N, 2), bilinear between centres."""
-        u = (xy[:, 0] - self.origin[0]) / self.resolution - 0.5
-        v = (xy[:, 1] - self.origin[1]) / self.resolution - 0.5
-        height, width = self.distance.shape
-        j0 = np.floor(u).astype(np.int64)
-        i0 = np.floor(v).astype(np.int64)
-        inside = (i0 >= 0) & (i0 < height - 1) & (j0 >= 0) & (j0 < width - 1)
-        i0 = np.clip(i0, 0, height - 2)
-        j0 = np.clip(j0, 0, width - 2)
-        fu, fv = u - j0, v - i0
-        d00 = self.distance[i0, j0]
-        d01 = self.distance[i0, j0 + 1]
-        d10 = self.distance[i0 + 1, j0]
-        d11 = self.distance[i0 + 1, j0 + 1]
-        value = (1 - fv) * ((1 - fu) * d00 + fu * d01) + fv * ((1 - fu) * d10 + fu * d11)
-        grad_x = ((1 - fv) * (d01 - d00) + fv * (d11 - d10)) / self.resolution
-        grad_y = ((1 - fu) * (d10 - d00) + fu * (d11 - d01)) / self.resolution
-        value = np.where(inside, value, self.config.distance_cap)
-        return value, np.where(inside, grad_x, 0.0), np.where(inside, grad_y, 0.0)
-
-    def fit(self, points: NDArray, predicted: NDArray) -> tuple[NDArray[np.float64], float] | None:
-        """points: (N, 2) robot frame; predicted: (3,) map-frame pose. Returns (pose, inlier share)
-        of an accepted fit, or None (too few points, too few fit, or a correction too large)."""
-        c = self.config
-        if len(points) < c.min_points:
-            return None
-        prior = np.diag([1 / c.prior_sigma_xy**2, 1 / c.prior_sigma_xy**2, 1 / np.deg2rad(c.prior_sigma_yaw_deg) ** 2])
-        pose = np.asarray(predicted, dtype=np.float64).copy()
-        px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
-        for _ in range(c.iterations):
-            cos, sin = math.cos(pose[2]), math.sin(pose[2])
-            world = np.stack([pose[0] + cos * px - sin * py, pose[1] + sin * px + cos * py], axis=-1)
-            residual, grad_x, grad_y = self.sample(world)
-            magnitude = np.abs(residual)
-            weight = np.where(magnitude <= c.huber, 1.0, c.huber / np.maximum(magnitude, 1e-9))
-            weight = np.where(magnitude < c.max_residual, weight, 0.0) / c.residual_sigma**2
-            jacobian = np.stack([grad_x, grad_y, grad_x * (-sin * px - cos * py) + grad_y * (cos * px - sin * py)], axis=-1)
-            offset = pose - predicted
-            offset[2] = se2.wrap_angle(offset[2])
-            hessian = (jacobian * weight[:, None]).T @ jacobian + prior
-            gradient = (jacobian * weight[:, None]).T @ residual + prior @ offset
-            step = -np.linalg.solve(hessian, gradient)
-            pose += step
-            if np.hypot(step[0], step[1]) < 1e-4 and abs(step[2]) < 1e-5:
-                break
-        pose[2] = se2.wrap_angle(pose[2])
-        world = se2.transform_points(pose, np.stack([px, py], axis=-1))
-        share = float((np.abs(self.sample(world)[0]) <= c.inlier_distance).mean())
-        correction = se2.between(predicted, pose)
-        if (
-            share < c.min_inlier_share
-            or np.hypot(correction[0], correction[1]) > c.max_correction
-            or abs(correction[2]) > np.deg2rad(c.max_correction_yaw_deg)
-        ):
-            return None
-        return pose, share
 
 
 # ---------------------------------------------------------------------------------------------
@@ -317,9 +199,26 @@ class MetricGrid:
         self.scans = 0
         # navigation state
         self.localizer: ScanToMap | None = None
+        self.relocalizer: Relocalizer | None = None
         self.follower = PathFollower(self.config.follower)
         self.planning_ms: list[float] = []
-        self.counters = {"plans": 0, "replans_blocked": 0, "plans_failed": 0, "fallback_plans": 0, "fits": 0, "fits_rejected": 0}
+        self.counters = dict.fromkeys(
+            [
+                "plans",
+                "replans_blocked",
+                "plans_failed",
+                "fallback_plans",
+                "fits",
+                "fits_rejected",
+                "relocalizations",
+                "global_searches",
+                "relocalizations_failed",
+            ],
+            0,
+        )
+        self._localized = False
+        self._localize_started: float | None = None
+        self._rejections = 0
         self._initial_pose: NDArray[np.float64] | None = None
         self._pose: NDArray[np.float64] | None = None
         self._nav_odometry: LidarOdometry | None = None
@@ -379,7 +278,7 @@ class MetricGrid:
         self.online_grid = None  # superseded by the optimised grid
 
     def save(self, directory: Path) -> None:
-        """``map.pgm`` + ``map.yaml`` (map_server), ``pose_graph.{json,npz}``, ``metric_grid.json``."""
+        """``map.png`` + ``map.yaml`` (map_server), ``pose_graph.{json,npz}``, ``metric_grid.json``."""
         if self.grid_map is None:
             self.finish_mapping()
         assert self.grid_map is not None and self.pose_graph is not None
@@ -390,7 +289,7 @@ class MetricGrid:
         manifest = {
             "format": FORMAT,
             "map": MAP_YAML,
-            "map_image": Path(MAP_YAML).with_suffix(".pgm").name,
+            "map_image": Path(MAP_YAML).with_suffix(".png").name,
             "pose_graph": ["pose_graph.json", "pose_graph.npz"],
             "resolution": self.grid_map.resolution,
             "origin": [float(v) for v in self.grid_map.origin],
@@ -483,18 +382,40 @@ class MetricGrid:
         }
         # the distance field serves both the localizer and the new-obstacle test
         self.localizer = ScanToMap(grid_map, self.config.localization)
+        self.relocalizer = Relocalizer(grid_map, self.localizer, self.robot_radius, self.config.relocalization)
 
     def _base(self, kind: str) -> NDArray[np.bool_]:
         return self._known_free if kind == "known" else self._not_occupied
 
     # -- navigation -------------------------------------------------------------------------------
 
+    def reset(self) -> None:
+        """Forget the previous trial: pose, odometry, goal, path, new obstacles, counters."""
+        self._initial_pose = None
+        self._pose = None
+        self._map_from_odom = None
+        self._nav_odometry = None
+        self._localized = False
+        self._localize_started: float | None = None
+        self._rejections = 0
+        self._goal = None
+        self.status = NavStatus()
+        self.planning_ms = []
+        self.follower.clear()
+        self._last_plan_stamp = -np.inf
+        self._new_obstacles.clear()
+        self._latest_new_obstacles = np.zeros((0, 2))
+        self.counters = dict.fromkeys(self.counters, 0)
+
     def set_initial_pose(self, pose: ArrayLike) -> None:
-        """The robot's pose (3,) in the map frame, as a Nav2 user sets it; odometry restarts here."""
+        """The robot's pose (3,) in the map frame, as a Nav2 user sets it (by hand: it may be off by
+        the protocol's error); odometry restarts here and the pose is searched for around it."""
         self._initial_pose = np.asarray(pose, dtype=np.float64).copy()
         self._pose = self._initial_pose.copy()
         self._map_from_odom = None
         self._nav_odometry = None
+        self._localized = False
+        self._localize_started = None
 
     def set_goal(self, goal: ArrayLike) -> None:
         """A new goal (2,) in the map frame; the path is planned at the next ``step``."""
@@ -514,6 +435,12 @@ class MetricGrid:
             return Command()
         points = voxel_filter_2d(obstacle_points(obs.points, self.band), self.config.localization.voxel)
         pose = self._track(obs, points)
+        if pose is None:  # no pose found on the map yet: turn in place to see more, for a while
+            relocalization = self.config.relocalization
+            if obs.stamp - (self._localize_started or 0.0) > relocalization.timeout:
+                self.status = NavStatus(Status.FAILED, "not_localized")
+                return Command()
+            return Command(0.0, relocalization.turn_rate)
         self._remember_new_obstacles(obs.stamp, pose, points)
         due = not self.follower.has_path or obs.stamp - self._last_plan_stamp >= self.config.planning.replan_period
         blocked = not due and self._path_blocked(pose)
@@ -532,12 +459,14 @@ class MetricGrid:
             return Command()
         return command
 
-    def _track(self, obs: Observation, points: NDArray) -> NDArray[np.float64]:
-        """Map-frame pose: odometry composed onto the initial pose, corrected by the map fit."""
+    def _track(self, obs: Observation, points: NDArray) -> NDArray[np.float64] | None:
+        """Map-frame pose: odometry composed onto the initial pose, corrected by the map fit; None
+        while the pose has not been found on the map (``Relocalizer``)."""
         if self._initial_pose is None:
             if self._pose is None:
                 raise RuntimeError("the metric baseline needs set_initial_pose() before the first step")
             self.set_initial_pose(self._pose)  # carry on from the last tracked pose
+            self._localized = True
         if self._nav_odometry is None:
             self._nav_odometry = LidarOdometry(self.config.odometry)
         odom_pose = self._nav_odometry.update(obs.points, obs.odom)
@@ -546,17 +475,48 @@ class MetricGrid:
             self._map_from_odom = se2.compose(self._initial_pose, se2.inverse(odom_pose))
         pose = se2.compose(self._map_from_odom, odom_pose)
         loc = self.config.localization
-        if loc.enabled and self.localizer is not None and self._nav_odometry.scans % loc.every_scans == 0:
-            near = points[np.hypot(points[:, 0], points[:, 1]) <= loc.max_range]
+        near = points[np.hypot(points[:, 0], points[:, 1]) <= loc.max_range]
+        if not self._localized:
+            if self._localize_started is None:
+                self._localize_started = obs.stamp
+            found = self._relocalize(near, pose, everywhere=True)
+            self._pose = pose
+            if found is None:
+                return None
+            pose, self._localized = found, True
+            self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
+        elif loc.enabled and self.localizer is not None and self._nav_odometry.scans % loc.every_scans == 0:
             fit = self.localizer.fit(near, pose)
             if fit is None:
                 self.counters["fits_rejected"] += 1
-            else:
+                self._rejections += 1
+                if self._rejections >= self.config.relocalization.lost_after:  # lost: search the window again
+                    found = self._relocalize(near, pose, everywhere=False)
+                    self._rejections = 0
+                    if found is not None:
+                        fit = (found, 1.0)
+            if fit is not None:
                 self.counters["fits"] += 1
+                self._rejections = 0
                 pose = fit[0]
                 self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
         self._pose = pose
         return pose
+
+    def _relocalize(self, points: NDArray, guess: NDArray, everywhere: bool) -> NDArray[np.float64] | None:
+        """The pose of the scan on the map: the window around ``guess``, then (if allowed) all of it."""
+        config = self.config.relocalization
+        if not config.enabled or self.relocalizer is None:
+            return guess
+        self.counters["relocalizations"] += 1
+        found = self.relocalizer.around(points, guess)
+        if found is None and everywhere and config.global_search:
+            self.counters["global_searches"] += 1
+            found = self.relocalizer.everywhere(points)
+        if found is None:
+            self.counters["relocalizations_failed"] += 1
+            return None
+        return found[0]
 
     def _remember_new_obstacles(self, stamp: float, pose: NDArray, points: NDArray) -> None:
         """Keep the returns that the map does not explain (far from every mapped wall)."""
@@ -652,13 +612,36 @@ class MetricGrid:
         return np.vstack([start_xy[None], head, goal_xy[None]])
 
     def stats(self) -> dict[str, Any]:
-        planning_bytes = sum(int(mask.nbytes) for mask in getattr(self, "_eroded", {}).values())
         return {
             "planning_ms": list(self.planning_ms),
             "map_bytes": int(self.grid_map.nbytes) if self.grid_map is not None else 0,
-            "planning_state_bytes": planning_bytes + (self.localizer.nbytes if self.localizer is not None else 0),
             "counters": dict(self.counters),
         }
+
+    def memory(self) -> MemoryBreakdown:
+        """map: the trinary grid; localization: the signed distance field and the relocalizer's
+        score field; derived: the eroded planning masks. While mapping (no grid yet), the online
+        grid's trinary map; the mapping state is in ``mapping_stats``."""
+        if self.grid_map is None:
+            return MemoryBreakdown(map=int(self.mapping_stats()["map_bytes"]))
+        localization = (self.localizer.nbytes if self.localizer is not None else 0) + (
+            self.relocalizer.nbytes if self.relocalizer is not None else 0
+        )
+        derived = sum(int(mask.nbytes) for mask in getattr(self, "_eroded", {}).values())
+        return MemoryBreakdown(map=int(self.grid_map.nbytes), localization=localization, derived=derived)
+
+    @staticmethod
+    def disk_usage(directory: Path) -> dict[str, int]:
+        """The saved map's bytes per memory part: the map_server map and the manifest are the map;
+        the pose graph (keyframe scans, for re-optimising later) is mapping state, of no part."""
+        directory = Path(directory)
+        files = [directory / MAP_YAML, directory / MANIFEST]
+        try:
+            image = yaml.safe_load((directory / MAP_YAML).read_text()).get("image")
+            files.append(directory / str(image))
+        except (OSError, AttributeError, yaml.YAMLError):
+            pass
+        return {"map": sum(f.stat().st_size for f in files if f.is_file())}
 
     def pose_estimate(self) -> NDArray[np.float64] | None:
         return None if self._pose is None else self._pose.copy()

@@ -1,0 +1,110 @@
+"""One protocol for every compared system: what each is told at a trial's start, when it may say
+"reached", and the two benchmark settings (DESIGN.md, "The NavigationSystem protocol").
+
+* Initial pose. A system whose entry ``wants_initial_pose`` gets the trial's start in the map
+  frame perturbed by a seeded error, as a person setting it by hand would: uniform in
+  ``±initial_pose_error_xy`` metres along x and y and ``±initial_pose_error_yaw_deg`` degrees
+  (default ±0.5 m, ±10°; 0 gives the exact start). It must correct the error by its own
+  registration. The error of trial i depends on (seed, trial) only, so it is the same with any
+  number of workers, on resume, and for every system. Systems without the flag get nothing.
+* Stop tolerance. Every system that declares ``reached`` by its own estimate uses one tolerance
+  (``stop_tolerance``, 0.35 m); the runner's STOP rule (success) stays ``goal_tolerance`` (0.5 m)
+  on the true pose.
+* Settings. ``precise`` is the paper's: exact odometry, no lidar range noise. ``noisy``: odometry
+  random walks of 2 % and 0.5°/m, lidar range noise 1 cm. A run under a setting overrides the
+  scenario file's odometry noise and range noise; without one, the file's own values hold and the
+  manifest names the setting they amount to (``precise``, ``noisy`` or ``custom``).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from navtopo import geometry as se2
+from scenarios import Scenario
+from scenarios.schema import OdometryNoiseSpec
+
+INITIAL_POSE_SALT = 0x1A17  # keeps the initial-pose stream apart from the sensor noise streams
+
+
+@dataclass(frozen=True)
+class TrialProtocol:
+    initial_pose_error_xy: float = 0.5  # m, uniform in [-e, e] along x and along y
+    initial_pose_error_yaw_deg: float = 10.0  # degrees, uniform in [-e, e]
+    stop_tolerance: float = 0.35  # m, systems that say "reached" by their own estimate
+    goal_tolerance: float = 0.5  # m, the runner's STOP rule on the true pose
+
+    def as_json(self) -> dict[str, float]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any] | None) -> TrialProtocol:
+        """The protocol a manifest recorded; a manifest from before the protocol existed had exact
+        initial poses and the followers' 0.5 m tolerance."""
+        if not data:
+            return cls(initial_pose_error_xy=0.0, initial_pose_error_yaw_deg=0.0, stop_tolerance=0.5)
+        known = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: float(v) for k, v in data.items() if k in known})
+
+    def initial_pose_error(self, seed: int, trial: int) -> NDArray[np.float64]:
+        """(3,) [dx, dy, dyaw] of trial ``trial``: the error added to the true start (map frame)."""
+        rng = np.random.default_rng([int(seed), INITIAL_POSE_SALT, int(trial)])
+        dx, dy = rng.uniform(-1.0, 1.0, 2) * self.initial_pose_error_xy
+        dyaw = rng.uniform(-1.0, 1.0) * np.radians(self.initial_pose_error_yaw_deg)
+        return np.array([dx, dy, dyaw])
+
+    def given_initial_pose(self, true_start_in_map: NDArray, seed: int, trial: int) -> NDArray[np.float64]:
+        """The initial pose a system is given: the true start (map frame) moved by the error,
+        x and y in the map frame, yaw added."""
+        error = self.initial_pose_error(seed, trial)
+        pose = np.asarray(true_start_in_map, dtype=np.float64) + error
+        pose[2] = se2.wrap_angle(pose[2])
+        return pose
+
+
+@dataclass(frozen=True)
+class Setting:
+    name: str
+    odometry_noise: OdometryNoiseSpec | None
+    range_noise: float
+
+
+SETTINGS: dict[str, Setting] = {
+    "precise": Setting("precise", None, 0.0),
+    "noisy": Setting("noisy", OdometryNoiseSpec(translation=0.02, rotation_deg_per_m=0.5), 0.01),
+}
+
+
+def setting_of(scenario: Scenario) -> str:
+    """The name of the setting a scenario's own sensor and odometry amount to."""
+    spec = scenario.spec
+    for setting in SETTINGS.values():
+        if spec.odometry.noise == setting.odometry_noise and spec.sensor.range_noise == setting.range_noise:
+            return setting.name
+    return "custom"
+
+
+def apply_setting(scenario: Scenario, name: str | None) -> Scenario:
+    """The scenario under a setting (its odometry noise and lidar range noise replaced); ``None``
+    keeps the file's own. The world, route and trials are shared, not rebuilt."""
+    if name is None:
+        return scenario
+    if name not in SETTINGS:
+        raise ValueError(f"unknown setting {name!r} (choose from {', '.join(SETTINGS)})")
+    setting = SETTINGS[name]
+    spec = scenario.spec
+    new_spec = spec.model_copy(
+        update={
+            "odometry": spec.odometry.model_copy(update={"noise": setting.odometry_noise}),
+            "sensor": spec.sensor.model_copy(update={"range_noise": setting.range_noise}),
+        }
+    )
+    clone = copy.copy(scenario)  # shares the world, route, trials and cached rasters
+    clone.spec = new_spec
+    return clone
