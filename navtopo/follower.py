@@ -150,6 +150,14 @@ class PathFollower:
         with its progress along the path within ``goal_tolerance + progress_window`` of it."""
         return self._reached
 
+    def path_ahead(self, distance: float) -> NDArray[np.float64]:
+        """(K, 2) the path from the progress point to ``distance`` metres further along it."""
+        if not self.has_path:
+            return np.zeros((0, 2))
+        end = min(self._progress + distance, self.path_length)
+        inner = self._points[(self._arc > self._progress) & (self._arc < end)]
+        return np.vstack([self._point_at(self._progress)[None], inner, self._point_at(end)[None]])
+
     def at_goal(self, pose: ArrayLike) -> bool:
         """Is the pose (3,) [x, y, yaw] within ``goal_tolerance`` of the last waypoint?"""
         if not self.has_path:

@@ -88,3 +88,17 @@ def to_matrix(a: ArrayLike) -> NDArray[np.float64]:
 def from_matrix(m: ArrayLike) -> Pose2:
     m = np.asarray(m, dtype=np.float64)
     return np.array([m[0, 2], m[1, 2], np.arctan2(m[1, 0], m[0, 0])], dtype=np.float64)
+
+
+def distance_to_polyline(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.float64]:
+    """(M,) distance of each point (M, 2) to the polyline (K, 2), K >= 1 (a single point: to it)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    path = np.asarray(polyline, dtype=np.float64).reshape(-1, 2)
+    if len(path) == 1:
+        return np.hypot(*(points - path[0]).T)
+    starts, vectors = path[:-1], np.diff(path, axis=0)
+    lengths2 = np.maximum((vectors**2).sum(axis=1), 1e-12)
+    rel = points[:, None, :] - starts[None, :, :]
+    along = np.clip((rel * vectors[None]).sum(axis=2) / lengths2, 0.0, 1.0)
+    closest = starts[None] + along[..., None] * vectors[None]
+    return np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)).min(axis=1)

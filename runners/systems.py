@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict
 from navtopo import geometry as se2
 from navtopo import grid_search
 from navtopo.follower import FollowerConfig, PathFollower
+from navtopo.grid_planning import GridFrame, plan_path
 from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 from scenarios.schema import RobotSpec, SensorSpec
 
@@ -276,16 +277,9 @@ class Oracle:
 
     def _plan(self, start_xy: NDArray) -> NDArray[np.float64] | None:
         assert self.goal_world is not None
-        w = self.world
-        for passable in (self.passable, self.passable_tight):
-            start = grid_search.nearest_free(passable, w.to_cell(start_xy), 10)
-            goal = grid_search.nearest_free(passable, w.to_cell(self.goal_world), 10)
-            if start is None or goal is None:
-                continue
-            cells = grid_search.theta_star(passable, start, goal)
-            if cells is not None:
-                return np.vstack([start_xy[None, :], w.to_world(cells[1:-1]), self.goal_world[None, :]])
-        return None
+        frame = GridFrame(self.world.origin, self.world.resolution)
+        planned = plan_path([self.passable, self.passable_tight], frame, start_xy, self.goal_world, snap_cells=10)
+        return planned.points if planned is not None else None
 
     def stats(self) -> dict[str, Any]:
         return {"planning_ms": list(self.planning_ms), "map_bytes": self.memory().map}

@@ -41,6 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from navtopo import geometry as se2
 from navtopo import grid_search
 from navtopo.follower import FollowerConfig, PathFollower
+from navtopo.grid_planning import GridFrame, plan_path
 from navtopo.local_grid import FREE, OCCUPIED, GridConfig, obstacle_points
 from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 
@@ -167,19 +168,6 @@ class MapLoadError(ValueError):
 
 # ---------------------------------------------------------------------------------------------
 # the system
-
-
-def _segment_distances(points: NDArray, path: NDArray) -> NDArray[np.float64]:
-    """(M,) distance of each point (M, 2) to the polyline path (K, 2), K >= 1."""
-    if len(path) == 1:
-        return np.hypot(*(points - path[0]).T)
-    starts, ends = path[:-1], path[1:]
-    vectors = ends - starts
-    lengths2 = np.maximum((vectors**2).sum(axis=1), 1e-12)
-    rel = points[:, None, :] - starts[None, :, :]
-    along = np.clip((rel * vectors[None]).sum(axis=2) / lengths2, 0.0, 1.0)
-    closest = starts[None] + along[..., None] * vectors[None]
-    return np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)).min(axis=1)
 
 
 class MetricGrid:
@@ -543,15 +531,8 @@ class MetricGrid:
         if not len(self._latest_new_obstacles) or not self.follower.has_path:
             return False
         cfg = self.config.planning
-        path = self.follower.path
-        arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-        progress = self.follower.progress
-        end = progress + cfg.block_check_distance
-        ahead = np.flatnonzero((arc > progress) & (arc < end))
-        beyond = min(int(np.searchsorted(arc, end)), len(path) - 1)
-        polyline = np.vstack([pose[None, :2], path[ahead], path[beyond : beyond + 1]])
-        distances = _segment_distances(self._latest_new_obstacles, polyline)
-        return bool(distances.min() < self.robot_radius + cfg.block_clearance)
+        ahead = np.vstack([pose[None, :2], self.follower.path_ahead(cfg.block_check_distance)])
+        return bool(se2.distance_to_polyline(self._latest_new_obstacles, ahead).min() < self.robot_radius + cfg.block_clearance)
 
     def _timed_plan(self, start_xy: NDArray, goal_xy: NDArray) -> NDArray[np.float64] | None:
         t0 = time.perf_counter()
@@ -565,14 +546,11 @@ class MetricGrid:
         """(K, 2) map-frame path from start to goal (both (2,)), or None.
 
         Theta* on the known free cells eroded by radius + margin; then the radius alone; then, if
-        allowed, with unknown cells counted as free. Newly seen obstacles are blocked in all.
+        allowed, with unknown cells counted as free (``navtopo.grid_planning.plan_path``). Newly
+        seen obstacles are blocked in all.
         """
         assert self.grid_map is not None
         grid = self.grid_map
-        start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
-        goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
-        start_cell = grid_search.world_to_cell(start_xy, grid.origin, grid.resolution)
-        goal_cell = grid_search.world_to_cell(goal_xy, grid.origin, grid.resolution)
         snap = int(np.ceil(self.config.planning.snap_radius / grid.resolution))
         obstacles = self._recent_obstacles()
         blocked = None
@@ -583,33 +561,19 @@ class MetricGrid:
             inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
             blocked = np.zeros(grid.cells.shape, bool)
             blocked[rows[inside], cols[inside]] = True
-        for index, (kind, radius) in enumerate(self._attempts):
-            if blocked is None:
-                passable = self._eroded[(kind, radius)]
-            else:
-                passable = grid_search.inflate_free(self._base(kind) & ~blocked, radius, grid.resolution)
-            start = grid_search.nearest_free(passable, start_cell, snap)
-            goal = grid_search.nearest_free(passable, goal_cell, snap)
-            if start is None or goal is None:
-                continue
-            path_cells = grid_search.theta_star(passable, start, goal)
-            if path_cells is None:
-                continue
-            self.counters["fallback_plans"] += int(index > 0)
-            return self._waypoints(path_cells, start_xy, goal_xy)
-        return None
 
-    def _waypoints(self, cells: NDArray, start_xy: NDArray, goal_xy: NDArray) -> NDArray[np.float64]:
-        """Cell path -> map points with the exact start and goal at its ends (a snapped end cell
-        more than a cell and a half away stays, as the way into the planned free space)."""
-        grid = self.grid_map
-        assert grid is not None
-        points = grid_search.cell_to_world(cells, grid.origin, grid.resolution)
-        near = 1.5 * grid.resolution
-        head = points[1:] if np.hypot(*(points[0] - start_xy)) <= near else points
-        if len(head) and np.hypot(*(head[-1] - goal_xy)) <= near:
-            head = head[:-1]
-        return np.vstack([start_xy[None], head, goal_xy[None]])
+        def mask(level: int) -> NDArray[np.bool_]:
+            kind, radius = self._attempts[level]
+            if blocked is None:
+                return self._eroded[(kind, radius)]
+            return grid_search.inflate_free(self._base(kind) & ~blocked, radius, grid.resolution)
+
+        frame = GridFrame(grid.origin, grid.resolution)
+        planned = plan_path(mask, frame, start_xy, goal_xy, snap, levels=len(self._attempts))
+        if planned is None:
+            return None
+        self.counters["fallback_plans"] += int(planned.level > 0)
+        return planned.points
 
     def stats(self) -> dict[str, Any]:
         return {
