@@ -31,7 +31,12 @@ class LocalizationConfig(BaseModel):
     drift_per_metre: float = Field(
         0.05, ge=0, description="... plus this share of the odometry travelled between them are skipped"
     )
-    cache_size: int = Field(128, ge=1, description="prepared vertex grids kept in memory")
+    cache_size: int = Field(
+        24,
+        ge=1,
+        description="prepared vertex grids kept in memory (an LRU cache: the current location, its neighbours and the "
+        "candidates being verified; bounded, so that it does not grow with the map)",
+    )
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,13 @@ class VertexGrids:
 
     def forget(self, vertex: int) -> None:
         self._cache.pop(vertex, None)
+
+    def clear(self) -> None:
+        self._cache.clear()
+
+    @property
+    def nbytes(self) -> int:
+        return sum(prepared.nbytes for prepared in self._cache.values())
 
 
 class Localizer:
@@ -103,14 +115,16 @@ class Localizer:
         exclude: set[int] | None = None,
         robot_hint: NDArray[np.float64] | None = None,
         hint_gate: dict[int, float] | None = None,
+        top_k: int | None = None,
     ) -> list[Localized]:
         """Verified candidates among the ``top_k`` descriptor neighbours, best score first.
 
         robot_hint: the robot's pose in the odometry frame of the vertices' hints, if that frame
         is still the current one; then each candidate's hint gives a guess for the matcher and
-        candidates farther than ``hint_gate[v]`` (m) from the hint are skipped.
+        candidates farther than ``hint_gate[v]`` (m) from the hint are skipped. top_k: how many
+        descriptor neighbours to verify (default: the config's).
         """
-        ids, _ = self.graph.nearest(descriptor, self.config.top_k)
+        ids, _ = self.graph.nearest(descriptor, top_k or self.config.top_k)
         found: list[Localized] = []
         for vertex in (int(v) for v in ids):
             if exclude and vertex in exclude:

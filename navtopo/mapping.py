@@ -57,11 +57,13 @@ class MappingCounters:
     inside: int = 0
     corrections: int = 0
     moved_along_edge: int = 0
+    moved_along_route: int = 0
     localized: int = 0
     loop_closures: int = 0
     new_vertices: int = 0
     rejected_edges: int = 0
     matches: int = 0
+    odometry_only: int = 0  # navigating: no location verified, the pose kept by odometry in the last one
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -77,6 +79,7 @@ class GraphMaintainer:
         config: MappingConfig,
         localization: LocalizationConfig,
         mapping: bool = True,
+        grids: VertexGrids | None = None,
     ) -> None:
         self.graph = graph
         self.describe = describe
@@ -84,8 +87,9 @@ class GraphMaintainer:
         self.matching = matching
         self.config = config
         self.mapping = mapping
-        self.grids = VertexGrids(graph, grid_config, matching, localization.cache_size)
+        self.grids = grids if grids is not None else VertexGrids(graph, grid_config, matching, localization.cache_size)
         self.localizer = Localizer(graph, self.grids, localization, matching, grid_config)
+        self.last_verified = False  # the last update verified the pose by scan matching
         self.current: int | None = None
         self.pose_in_current = np.zeros(3)
         self.counters = MappingCounters()
@@ -114,21 +118,51 @@ class GraphMaintainer:
 
     # -- the update --------------------------------------------------------------------------------
 
-    def update(self, points: NDArray[np.float32], odom: NDArray[np.float64], stamp: float) -> str:
-        """Integrate odometry and, when due, update the state (and, mapping, the graph).
+    def start_at(self, vertex: int, pose_in_vertex: NDArray[np.float64], odom: NDArray[np.float64]) -> None:
+        """Track from a known state (a navigation start, once localized): odometry counts from ``odom``."""
+        self._switch(vertex, pose_in_vertex)
+        self._last_odom = np.asarray(odom, dtype=np.float64).copy()
+        self._odom_at_update = self._last_odom.copy()
 
-        Returns what happened: "odometry", "inside", "edge", "localized", "new_vertex" or "lost".
+    def forget(self) -> None:
+        """No current location, no odometry: the state of a robot that has not localized yet."""
+        self.current = None
+        self.pose_in_current = np.zeros(3)
+        self._last_odom = None
+        self._odom_at_update = None
+        self.last_verified = False
+
+    def update(
+        self,
+        points: NDArray[np.float32],
+        odom: NDArray[np.float64],
+        stamp: float,
+        route: list[int] | None = None,
+        force: bool = False,
+        localize: bool = True,
+    ) -> str:
+        """Integrate odometry and, when due (or ``force``), update the state (and, mapping, the graph).
+
+        route: navigating, the global path from the current vertex; the robot moves to its next
+        vertex as soon as it is nearer to that one's centre than to the current one's and scan
+        matching agrees (the paper: "we try to change v_cur to the next node in the path").
+        localize: whether a robot that is neither inside nor along an edge may localize globally.
+        Returns what happened: "odometry", "inside", "edge", "route", "localized", "new_vertex" or "lost".
         """
         self.integrate(odom)
-        if not self.due(odom):
+        if not (force or self.due(odom)):
             return "odometry"
         self._odom_at_update = np.asarray(odom, dtype=np.float64).copy()
         self.counters.updates += 1
+        self.last_verified = False
         grid = grid_from_points(points, self.grid_config)
         if self.current is None and self.mapping:
             self._add_vertex(grid, points, odom, stamp, edge_from_current=False)
             return "new_vertex"
         query = prepare(grid, self.grid_config, self.matching)
+        if self.current is not None and route and len(route) > 1 and self._move_along_route(query, route[1]):
+            self.counters.moved_along_route += 1
+            return "route"
         if self.current is not None and self._inside(grid):
             self.counters.inside += 1
             self._correct(query)
@@ -136,13 +170,31 @@ class GraphMaintainer:
         if self.current is not None and self._move_along_edge(query):
             self.counters.moved_along_edge += 1
             return "edge"
-        if self._localize(query, points, odom):
+        if localize and self._localize(query, points, odom):
             self.counters.localized += 1
             return "localized"
         if self.mapping:
             self._add_vertex(grid, points, odom, stamp, edge_from_current=self.current is not None)
             return "new_vertex"
+        self.counters.odometry_only += 1
         return "lost"
+
+    def _move_along_route(self, query: PreparedGrid, next_vertex: int) -> bool:
+        """Switch to the route's next vertex once nearer to it than to the current one, if matching agrees."""
+        assert self.current is not None
+        if not self.graph.has_edge(self.current, next_vertex):
+            return False
+        here = self.pose_in_current
+        pose_uv = self.graph.edge(self.current, next_vertex)
+        if float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
+            return False
+        self.counters.matches += 1
+        located = self.localizer.verify(query, next_vertex, between(pose_uv, here), self.config.max_neighbour_jump)
+        if located is None:
+            return False
+        self._switch(next_vertex, located.pose)
+        self.last_verified = True
+        return True
 
     def _inside(self, grid: NDArray[np.uint8]) -> bool:
         assert self.current is not None
@@ -163,6 +215,7 @@ class GraphMaintainer:
         if located is not None:
             self.pose_in_current = located.pose
             self.counters.corrections += 1
+            self.last_verified = True
 
     def _move_along_edge(self, query: PreparedGrid) -> bool:
         assert self.current is not None
@@ -179,6 +232,7 @@ class GraphMaintainer:
             located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
             if located is not None:
                 self._switch(vertex, located.pose)
+                self.last_verified = True
                 return True
         return False
 
@@ -195,11 +249,21 @@ class GraphMaintainer:
                 v: self.localizer.config.drift_base + self.localizer.config.drift_per_metre * abs(self._odometer - travelled)
                 for v, travelled in self._odometer_at_vertex.items()
             }
+        elif self.current is not None:
+            # navigating: the current vertex's hint and the pose in it say where the robot is in the
+            # mapping run's odometry frame; locally the hints are consistent up to the drift between them
+            hint = compose(self.graph.vertices[self.current].pose_hint, self.pose_in_current)
+            config = self.localizer.config
+            gates = {
+                v: config.drift_base + config.drift_per_metre * float(np.hypot(*(vertex.pose_hint[:2] - hint[:2])))
+                for v, vertex in enumerate(self.graph.vertices)
+            }
         found = self.localizer.localize(query, descriptor, exclude=exclude, robot_hint=hint, hint_gate=gates)
         self.counters.matches += min(self.localizer.config.top_k, len(self.graph))
         for located in found:
             if self.current is None:
                 self._switch(located.vertex, located.pose)
+                self.last_verified = True
                 return True
             # the located vertex's centre in the current frame, through the robot
             pose_cu = compose(self.pose_in_current, inverse(located.pose))
@@ -208,6 +272,7 @@ class GraphMaintainer:
             if self.mapping and not self.graph.has_edge(self.current, located.vertex):
                 self.graph.add_edge(self.current, located.vertex, pose_cu)
             self._switch(located.vertex, located.pose)
+            self.last_verified = True
             return True
         return False
 

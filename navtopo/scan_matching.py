@@ -175,6 +175,17 @@ class PreparedGrid:
             self.nearest = np.full(self.crop.shape, -1, dtype=np.int32)
             self.distance = np.full(self.crop.shape, np.inf, dtype=np.float32)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays held for matching (the full grid, its crop, the distance transform,
+        the nearest-wall lookup, wall cells and, once computed, the features)."""
+        arrays = [self.grid, self.crop, self.walls, self.occupied_cells, self.occupied_xy, self.nearest, self.distance]
+        total = sum(int(a.nbytes) for a in arrays)
+        if "features" in self.__dict__:
+            xy, descriptors = self.features
+            total += int(xy.nbytes) + (int(descriptors.nbytes) if descriptors is not None else 0)
+        return total
+
     @cached_property
     def features(self) -> tuple[NDArray, NDArray | None]:
         """ORB keypoints as metric points (K, 2) of this grid's frame, and descriptors (K, 32)."""

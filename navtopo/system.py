@@ -2,13 +2,20 @@
 
 ``NavTopo`` composes the parts and owns no algorithm itself: the graph maintainer (mapping and
 tracking the robot in the graph, ``navtopo.mapping``), the localizer (``navtopo.localization``),
-the place-recognition descriptor (``navtopo.place_recognition``) and the shared follower.
-Mapping builds the graph from scans and odometry alone; ``save`` writes the graph folder with
-the resolved config; ``load`` restores it for navigation.
+the place-recognition descriptor (``navtopo.place_recognition``), the two-level planner
+(``navtopo.planning``), the goal server with start-up localization (``navtopo.navigation``) and
+the shared follower. Mapping builds the graph from scans and odometry alone; ``save`` writes the
+graph folder with the resolved config; ``load`` restores it for navigation.
+
+Memory (``memory()``, the runner's breakdown): ``map`` is the graph as stored (location grids,
+odometry hints, stamps, edges); ``localization`` the descriptors and the prepared grids of the
+matching cache; ``derived`` the union grids of the planning cache and the global planner's arrays;
+``model`` the descriptor network's weights.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -17,14 +24,16 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict
 
-from navtopo.follower import FollowerConfig
+from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
-from navtopo.place_recognition import make_descriptor
+from navtopo.navigation import NavigationConfig, Navigator, Startup, StartupConfig
+from navtopo.place_recognition import default_weights_path, make_descriptor
+from navtopo.planning import GlobalPlanner, LocalPlanner, PlanningConfig, UnionGrids
 from navtopo.scan_matching import MatchingConfig
-from navtopo.types import Command, NavStatus, Observation, Status
+from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation
 
 
 class NavTopoConfig(BaseModel):
@@ -37,13 +46,18 @@ class NavTopoConfig(BaseModel):
     matching: MatchingConfig = MatchingConfig()
     localization: LocalizationConfig = LocalizationConfig()
     mapping: MappingConfig = MappingConfig()
+    planning: PlanningConfig = PlanningConfig()
+    startup: StartupConfig = StartupConfig()
+    navigation: NavigationConfig = NavigationConfig()
     follower: FollowerConfig = FollowerConfig()
 
 
 class NavTopo:
-    """Topological navigation on a graph of locations (PRISM-TopoMap mapping)."""
+    """Topological navigation on a graph of locations (PRISM-TopoMap mapping, two-level planning)."""
 
-    def __init__(self, config: NavTopoConfig, graph: TopologicalGraph | None = None, mapping: bool = True) -> None:
+    def __init__(
+        self, config: NavTopoConfig, graph: TopologicalGraph | None = None, mapping: bool = True, context: Any = None
+    ) -> None:
         self.config = config
         self.descriptor = make_descriptor(config.descriptor)
         self.graph = graph if graph is not None else TopologicalGraph(self.descriptor.dim)
@@ -60,14 +74,26 @@ class NavTopo:
             config.localization,
             mapping=mapping,
         )
-        self.status = NavStatus()
-        self.planning_ms: list[float] = []
+        robot_radius = float(context.robot.radius) if context is not None else 0.3
+        self.unions = UnionGrids(self.graph, config.grid, config.planning)
+        self.navigator = Navigator(
+            graph=self.graph,
+            maintainer=self.maintainer,
+            startup=Startup(self.maintainer, self.descriptor.embed, config.startup),
+            global_planner=GlobalPlanner(self.graph),
+            local=LocalPlanner(self.unions, robot_radius, config.planning),
+            unions=self.unions,
+            follower=PathFollower(config.follower.for_robot(context)),
+            config=config.navigation,
+            robot_radius=robot_radius,
+        )
+        self.navigator.reset()
         self.update_ms: list[float] = []
 
     @staticmethod
     def warm_up() -> None:
         """Load the compiled kernels (grids, matching, planning) before anything is timed."""
-        from navtopo.grid_search import theta_star
+        from navtopo.grid_search import inflate_free, nearest_free, theta_star
         from navtopo.local_grid import grid_from_points
         from navtopo.scan_matching import match
 
@@ -75,13 +101,19 @@ class NavTopo:
         ring = np.stack([4 * np.cos(angles), 3 * np.sin(angles), np.full(360, 1.0)], 1).astype(np.float32)
         grid = grid_from_points(ring)
         match(grid, grid, initial_guess=np.zeros(3))
-        theta_star(np.ones((8, 8), bool), (0, 0), (7, 7))
+        free = inflate_free(np.ones((8, 8), bool), 0.1, 0.1)
+        nearest_free(free, (0, 0), 2)
+        theta_star(free, (0, 0), (7, 7))
+
+    @property
+    def status(self) -> NavStatus:
+        return self.navigator.status
 
     # -- mapping -----------------------------------------------------------------------------------
 
     @classmethod
     def create(cls, config: NavTopoConfig, context: Any = None) -> NavTopo:
-        return cls(config)
+        return cls(config, context=context)
 
     def observe(self, obs: Observation) -> None:
         self.maintainer.update(obs.points, obs.odom, obs.stamp)
@@ -100,13 +132,13 @@ class NavTopo:
             raise ValueError(
                 f"{directory}: the graph was built with descriptor {saved.get('descriptor')!r}, not {config.descriptor!r}"
             )
-        return cls(config, graph, mapping=False)
+        return cls(config, graph, mapping=False, context=context)
 
     def mapping_stats(self) -> dict[str, Any]:
         counters = self.maintainer.counters
         stamps = [v.stamp for v in self.graph.vertices]
         return {
-            "map_bytes": self.graph.nbytes,
+            "map_bytes": self.memory().map,
             "vertices": len(self.graph),
             "edges": self.graph.edge_count,
             "descriptor": self.config.descriptor,
@@ -117,22 +149,74 @@ class NavTopo:
 
     # -- navigation --------------------------------------------------------------------------------
 
+    def reset(self) -> None:
+        """Forget the previous trial: no location, no pose, no goal, no removed edge."""
+        self.navigator.reset()
+        self.update_ms = []
+
     def set_goal(self, goal: NDArray[np.float64]) -> None:
-        self.status = NavStatus()
-        self.planning_ms = []
-        self.goal = np.asarray(goal, dtype=np.float64)
+        """A map-frame goal (2,), turned into ``(v_goal, T_goal)`` with the vertices' odometry hints."""
+        self.navigator.set_goal(np.asarray(goal, dtype=np.float64))
+
+    def set_goal_in_graph(self, vertex: int, pose_in_vertex: NDArray[np.float64]) -> None:
+        """The paper's goal form: the goal's vertex and its position (2,) in that vertex's frame."""
+        self.navigator.set_goal_in_graph(vertex, pose_in_vertex)
 
     def step(self, obs: Observation) -> Command:
         t0 = time.perf_counter()
-        self.maintainer.update(obs.points, obs.odom, obs.stamp)
+        command = self.navigator.step(obs)
         self.update_ms.append((time.perf_counter() - t0) * 1e3)
-        # Two-level planning and goal serving are the next milestone (DESIGN.md: planning.py);
-        # until then a trial ends at once with this reason rather than with a made-up path.
-        self.status = NavStatus(Status.FAILED, "navigation_not_implemented")
-        return Command()
+        return command
 
     def stats(self) -> dict[str, Any]:
-        return {"planning_ms": list(self.planning_ms), "map_bytes": self.graph.nbytes}
+        nav = self.navigator
+        goal = None
+        if nav.goal is not None:
+            goal = {"vertex_stamp": self.graph.vertices[nav.goal.vertex].stamp, "pose": [float(v) for v in nav.goal.pose]}
+        counters = {k: v for k, v in vars(self.maintainer.counters).items() if k != "reasons"}
+        return {
+            "planning_ms": list(nav.planning_ms),
+            "first_plan_ms": nav.first_plan_ms,
+            "map_bytes": self.memory().map,
+            "counters": {**counters, **nav.counters},
+            "localizations": [loc.as_json() for loc in nav.localizations],
+            "goal": goal,
+        }
+
+    def memory(self) -> MemoryBreakdown:
+        descriptors = int(self.graph.descriptors.nbytes)
+        return MemoryBreakdown(
+            map=self.graph.nbytes - descriptors,
+            localization=descriptors + self.maintainer.grids.nbytes,
+            derived=self.unions.nbytes + self.navigator.global_planner.nbytes,
+            model=int(self.descriptor.nbytes),
+        )
+
+    @staticmethod
+    def disk_usage(directory: Path) -> dict[str, int]:
+        """The saved graph's bytes per memory part; the model is the shipped weights file it loads."""
+        directory = Path(directory)
+        descriptors = directory / "descriptors.npy"
+        grids = sum(p.stat().st_size for p in (directory / "grids").glob("*") if p.is_file())
+        index = directory / "graph.json"
+        model = 0
+        try:
+            name = json.loads(index.read_text()).get("navtopo_config", {}).get("descriptor")
+            weights = default_weights_path(name) if name else None
+            model = weights.stat().st_size if weights is not None and weights.is_file() else 0
+        except (OSError, ValueError, KeyError):
+            pass
+        return {
+            "map": grids + (index.stat().st_size if index.is_file() else 0),
+            "localization": descriptors.stat().st_size if descriptors.is_file() else 0,
+            "model": model,
+        }
+
+    def anchored_pose(self) -> tuple[float, NDArray[np.float64]] | None:
+        """(creation stamp of the current location, the pose in it): what the runner compares with the truth."""
+        if not self.navigator.localized or self.maintainer.current is None:
+            return None
+        return self.graph.vertices[self.maintainer.current].stamp, self.maintainer.pose_in_current.copy()
 
     def pose_estimate(self) -> NDArray[np.float64] | None:
-        return None
+        return None  # NavTopo has no map frame: its pose is relative to a location (anchored_pose)

@@ -177,6 +177,9 @@ def run_mapping(
                 late = sum(1 for stamp in vertex_stamps if travelled_at_stamp.get(stamp, 0.0) > half)
                 report["vertices_second_half"] = late
                 report["vertices_second_half_share"] = round(late / max(len(vertex_stamps), 1), 4)
+                # the true pose (scenario frame) where each location was made: the runner's key to
+                # check a graph system's own estimates (``anchored_pose``) afterwards; never given to it
+                report["anchors"] = [[stamp, *(round(float(v), 6) for v in true_at_stamp[stamp])] for stamp in vertex_stamps]
             report.update(stats)
             write_json(run.mapping_path(name), report)
             reports[name] = report

@@ -133,6 +133,7 @@ def summarize(
             "map_load_ms": nav.get("map_load_ms"),
             "memory": memory_summary(mine, mapping.get(name) or {}, nav),
             "tracking_error_m": _tracking_summary([r["tracking_error_m"] for r in mine if r.get("tracking_error_m")]),
+            **_localization_summary(mine),
             "mapping_ms_per_scan": (mapping.get(name) or {}).get("ms_per_scan"),
             "failure_reasons": _count([r["reason"] for r in mine if not r["success"]]),
         }
@@ -157,6 +158,25 @@ def memory_summary(records: list[dict[str, Any]], mapping: dict[str, Any], navig
         **parts,
         "disk": navigation.get("disk", mapping.get("map_disk")),
     }
+
+
+def _localization_summary(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Start-up localizations checked against the truth, and goal conversions (graph systems)."""
+    out: dict[str, Any] = {}
+    found = [r["startup_localization"] for r in records if r.get("startup_localization")]
+    if found or any(r.get("reason") == "not_localized" for r in records):
+        seconds = [f["seconds"] for f in found if f.get("seconds") is not None]
+        out["startup_localization"] = {
+            "right": sum(1 for f in found if f["right"]),
+            "wrong": sum(1 for f in found if not f["right"]),
+            "not_localized": sum(1 for r in records if r.get("reason") == "not_localized"),
+            "seconds": stats_ms(seconds) if seconds else None,
+            "error_m_median": round(float(np.median([f["error_m"] for f in found])), 4) if found else None,
+        }
+    errors = [r["goal_conversion_error_m"] for r in records if r.get("goal_conversion_error_m") is not None]
+    if errors:
+        out["goal_conversion_error_m"] = {"median": round(float(np.median(errors)), 4), "max": round(float(max(errors)), 4)}
+    return out
 
 
 def _tracking_summary(per_trial: list[dict[str, float]]) -> dict[str, float] | None:

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import psutil
+from numpy.typing import NDArray
 
 from navtopo import geometry as se2
 from runners.mapping import context_for, disk_report
@@ -47,7 +48,56 @@ class TrialJob:
     measure_memory: bool = True
     setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own
     protocol: dict[str, Any] = field(default_factory=lambda: TrialProtocol().as_json())
+    anchors: list[list[float]] | None = None  # [[stamp, x, y, yaw], ...]: where the system's locations were made (truth)
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Anchors:
+    """The true poses (scenario frame) where a graph system made its locations, by creation stamp:
+    the runner turns the system's location-relative estimates into checkable ones with them."""
+
+    poses: dict[float, NDArray[np.float64]]
+
+    @classmethod
+    def from_rows(cls, rows: list[list[float]] | None) -> Anchors | None:
+        if not rows:
+            return None
+        return cls({round(float(r[0]), 6): np.asarray(r[1:4], dtype=np.float64) for r in rows})
+
+    def locate(self, anchored: tuple[float, NDArray] | None) -> NDArray[np.float64] | None:
+        """(anchor stamp, pose in the anchor) -> the pose in the scenario frame, or None."""
+        if anchored is None:
+            return None
+        anchor = self.poses.get(round(float(anchored[0]), 6))
+        return None if anchor is None else se2.compose(anchor, np.asarray(anchored[1], dtype=np.float64))
+
+    def judge(self, stats: dict[str, Any], true_at: dict[float, NDArray], goal: NDArray, tolerance: float) -> dict[str, Any]:
+        """The system's start-up localization and goal conversion against the truth (diagnostics)."""
+        out: dict[str, Any] = {}
+        localizations = stats.get("localizations") or []
+        if localizations:
+            first = localizations[0]
+            estimate = self.locate((first["vertex_stamp"], np.asarray(first["pose"])))
+            truth = true_at.get(first["stamp"])
+            if estimate is not None and truth is not None:
+                error = float(se2.distance(estimate, truth))
+                yaw = float(np.degrees(abs(se2.wrap_angle(estimate[2] - truth[2]))))
+                out["startup_localization"] = {
+                    "seconds": first.get("seconds"),
+                    "error_m": round(error, 4),
+                    "yaw_error_deg": round(yaw, 3),
+                    "right": bool(error <= tolerance and yaw <= 15.0),
+                    "looks": first.get("looks"),
+                    "hypotheses": first.get("hypotheses"),
+                }
+        goal_estimate = stats.get("goal")
+        if goal_estimate:
+            anchor = self.poses.get(round(float(goal_estimate["vertex_stamp"]), 6))
+            if anchor is not None:
+                point = se2.transform_points(anchor, np.asarray(goal_estimate["pose"], dtype=np.float64)[None, :2])[0]
+                out["goal_conversion_error_m"] = round(float(np.hypot(*(point - goal))), 4)
+        return out
 
 
 def _rss() -> int:
@@ -88,6 +138,7 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
         gc.collect()
         rss_before = _rss()
         context = context_for(entry, scenario, sim, protocol)
+        anchors = Anchors.from_rows(job.anchors)
         t0 = time.perf_counter()
         system = entry.load(Path(job.map_dir), config, context)
         map_load_ms = (time.perf_counter() - t0) * 1e3
@@ -95,7 +146,7 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
         for index in job.trials:
             trial = scenario.trials[index]
             record, rows, estimate = run_one_trial(
-                scenario, sim, entry, system, trial, index, job.seed, protocol, first, rss_before
+                scenario, sim, entry, system, trial, index, job.seed, protocol, first, rss_before, anchors
             )
             records.append(record)
             if run is not None:
@@ -140,6 +191,7 @@ def run_one_trial(
     protocol: TrialProtocol | None = None,
     first: FirstPlan | None = None,
     rss_before: int = 0,
+    anchors: Anchors | None = None,
 ):
     """One trial in this worker: (record, true trajectory rows, estimate rows or None)."""
     protocol = protocol or TrialProtocol()
@@ -154,6 +206,8 @@ def run_one_trial(
     first_plan_ms: float | None = None
     estimate_rows: list[tuple[float, float, float, float]] = []
     tracking: list[float] = []
+    true_at: dict[float, np.ndarray] = {}
+    stats: dict[str, Any] = {}
     initial_error = None
     compute_s = 0.0
     try:
@@ -178,11 +232,16 @@ def run_one_trial(
                 process = _rss()
                 first.rss_process_bytes, first.rss_bytes = process, process - rss_before
                 first.memory = _memory(system)
+            true_at[obs.stamp] = sim.true_pose
             estimate = getattr(system, "pose_estimate", lambda: None)()
             if estimate is not None:
                 estimate = np.asarray(estimate, float)
                 estimate_rows.append((obs.stamp, *estimate))
                 tracking.append(se2.distance(se2.compose(world_from_map, estimate), sim.true_pose))
+            elif anchors is not None and hasattr(system, "anchored_pose"):
+                anchored = anchors.locate(system.anchored_pose())
+                if anchored is not None:
+                    tracking.append(se2.distance(anchored, sim.true_pose))
             status = system.status
             ending = ""
             if status.state == Status.REACHED:
@@ -228,5 +287,7 @@ def run_one_trial(
         initial_pose_error=initial_error,
         memory=_memory(system),
     )
+    if anchors is not None:
+        record.update(anchors.judge(stats, true_at, trial.goal, protocol.goal_tolerance))
     json.dumps(record, allow_nan=False)  # fail here, not in the writer, if a NaN slipped in
     return record, rows, np.asarray(estimate_rows) if estimate_rows else None

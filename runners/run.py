@@ -222,6 +222,7 @@ def execute(
                     measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
                     setting=setting_override,
                     protocol=protocol.as_json(),
+                    anchors=mapping[name].get("anchors"),
                 )
             )
     run.incomplete = []

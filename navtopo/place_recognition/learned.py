@@ -65,6 +65,7 @@ class LearnedDescriptor(PlaceDescriptor):
     def __init__(self, weights: str | Path | None = "default", threads: int | None = None) -> None:
         self.threads = threads
         self.weights_meta: dict[str, Any] = {}
+        self._weights_path: Path | None = None
         if weights is not None:
             path = default_weights_path(self.name) if weights == "default" else Path(weights)
             if weights == "default" and not path.exists():
@@ -94,6 +95,17 @@ class LearnedDescriptor(PlaceDescriptor):
     @property
     def parameter_count(self) -> int:
         return sum(p.numel() for p in self.network.parameters())
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the network's weights and buffers as loaded."""
+        tensors = [*self.network.parameters(), *self.network.buffers()]
+        return int(sum(t.numel() * t.element_size() for t in tensors))
+
+    @property
+    def weights_path(self) -> Path | None:
+        """The file the weights were loaded from (None: untrained)."""
+        return self._weights_path
 
     def save_weights(self, path: str | Path, meta: dict[str, Any] | None = None) -> Path:
         """Write the network's weights and architecture; returns the path."""
@@ -131,4 +143,5 @@ class LearnedDescriptor(PlaceDescriptor):
             )
         self.network.load_state_dict(checkpoint["state_dict"])
         self.weights_meta = dict(checkpoint.get("meta", {}))
+        self._weights_path = path
         self.network.eval()

@@ -46,6 +46,11 @@ class PlaceDescriptor(ABC):
     def embed_batch(self, clouds: Sequence[Cloud]) -> NDArray[np.float32]:
         """(B, dim) float32 embeddings, each row L2-normalised."""
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of learned weights held in memory (0 for a hand-made descriptor)."""
+        return 0
+
     def embed(self, points: Cloud) -> NDArray[np.float32]:
         """(dim,) float32 L2-normalised embedding of one scan."""
         return self.embed_batch([points])[0]

@@ -1,0 +1,320 @@
+"""Two-level path planning of NavTopo (Muravyev & Yakovlev, Sec. "Path Planning").
+
+Global: Dijkstra over the graph of locations, an edge weighted by the length of its relative pose,
+from the goal's vertex (so that the way from wherever the robot is follows the predecessors, and a
+replan after leaving the path costs nothing); edges found impassable during a trial are left out.
+
+Local: a metric path in the frame of the current location ``v_cur``, on its *union grid*: the
+current location's grid and its neighbours' grids, warped into ``v_cur``'s frame by the edges'
+relative poses (occupied wins over free, free over unknown), with obstacles the current scan sees
+that the map does not explain blocked on top. The path is planned with the shared grid planner
+(``navtopo.grid_planning.plan_path``: free cells eroded by the robot radius plus a margin, then the
+radius alone, then unknown cells counted as free) to a target:
+
+* ``smoothing: none`` (the paper's): the next vertex of the global path, or the goal in ``v_goal``;
+* ``smoothing: lookahead`` (beyond the paper): the farthest point along the global path — the
+  polyline through the vertices' positions to the goal, all in ``v_cur``'s frame — that still lies
+  in the union grid's known free space; Theta*'s any-angle segments shortcut the vertices between.
+
+Union grids are built on demand and kept in a small LRU cache (a location and its neighbours: the
+neighbourhood, not the map), so that memory and planning time do not grow with the map.
+Frames: a union grid is centred on ``v_cur``'s observation point and axis-aligned with its frame
+(``navtopo.local_grid``'s convention: row ↔ y, col ↔ x); every point here is in ``v_cur``'s frame.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from navtopo import grid_search
+from navtopo.geometry import compose, inverse, transform_points
+from navtopo.graph import TopologicalGraph
+from navtopo.grid_planning import GridFrame, PlannedPath, plan_path
+from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, GridConfig, warp
+
+
+class PlanningConfig(BaseModel):
+    """Two-level planning; distances in metres."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    smoothing: Literal["none", "lookahead"] = Field(
+        "lookahead",
+        description="local target: the next vertex of the global path (none, the paper's) or the farthest "
+        "point of the global path in the union grid's known free space (lookahead)",
+    )
+    inflation_margin: float = Field(0.1, ge=0, description="beyond the robot radius and half a cell; as the baseline's")
+    union_radius: float = Field(25.0, gt=0, description="half the side of the union grid's canvas")
+    union_cache: int = Field(6, ge=1, description="union grids kept (an LRU cache over the neighbourhood)")
+    target_step: float = Field(0.2, gt=0, description="spacing of the points tried along the global path (lookahead)")
+    target_clearance: float = Field(0.05, ge=0, description="a lookahead target keeps this much more than the path's margin")
+    snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
+    replan_period: float = Field(2.0, gt=0, description="s of simulated time between local replans in one location")
+    new_obstacle_distance: float = Field(0.25, gt=0, description="a return this far from every mapped wall is a new obstacle")
+    new_obstacle_range: float = Field(6.0, gt=0, description="only nearer returns can be new obstacles")
+    obstacle_memory: float = Field(10.0, ge=0, description="s a newly seen obstacle stays blocked")
+
+
+# ---------------------------------------------------------------------------------------------
+# global
+
+
+@dataclass
+class GlobalPlanner:
+    """Dijkstra from the goal's vertex over the graph minus the removed edges."""
+
+    graph: TopologicalGraph
+    removed: set[frozenset[int]] = field(default_factory=set)
+    goal: int | None = None
+    _distance: NDArray[np.float64] | None = None
+    _toward_goal: NDArray[np.int64] | None = None  # next vertex on the way to the goal
+
+    def set_goal(self, vertex: int) -> None:
+        self.goal = vertex
+        self._search()
+
+    def remove_edge(self, u: int, v: int) -> None:
+        """An edge found impassable: left out of every later search (of this trial)."""
+        self.removed.add(frozenset((u, v)))
+        self._search()
+
+    def reset(self) -> None:
+        self.removed.clear()
+        self.goal = None
+        self._distance = self._toward_goal = None
+
+    def _search(self) -> None:
+        assert self.goal is not None
+        n = len(self.graph)
+        distance = np.full(n, np.inf)
+        toward = np.full(n, -1, dtype=np.int64)
+        distance[self.goal] = 0.0
+        heap = [(0.0, self.goal)]
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > distance[u]:
+                continue
+            for v, pose in self.graph.neighbours(u):
+                if frozenset((u, v)) in self.removed:
+                    continue
+                nd = d + float(np.hypot(pose[0], pose[1]))
+                if nd < distance[v]:
+                    distance[v] = nd
+                    toward[v] = u
+                    heapq.heappush(heap, (nd, v))
+        self._distance, self._toward_goal = distance, toward
+
+    def path(self, start: int) -> list[int] | None:
+        """Vertices from ``start`` to the goal, or None if the goal cannot be reached."""
+        assert self._distance is not None and self._toward_goal is not None and self.goal is not None
+        if not np.isfinite(self._distance[start]):
+            return None
+        path = [start]
+        while path[-1] != self.goal:
+            path.append(int(self._toward_goal[path[-1]]))
+        return path
+
+    def distance(self, start: int) -> float:
+        assert self._distance is not None
+        return float(self._distance[start])
+
+    @property
+    def nbytes(self) -> int:
+        arrays = [a for a in (self._distance, self._toward_goal) if a is not None]
+        return int(sum(a.nbytes for a in arrays))
+
+
+def path_positions(graph: TopologicalGraph, path: list[int]) -> NDArray[np.float64]:
+    """(len(path), 3) each vertex's observation point in the frame of ``path[0]``, composed along the edges."""
+    poses = [np.zeros(3)]
+    for u, v in zip(path[:-1], path[1:], strict=True):
+        poses.append(compose(poses[-1], graph.edge(u, v)))
+    return np.asarray(poses)
+
+
+# ---------------------------------------------------------------------------------------------
+# the union grid
+
+
+@dataclass
+class UnionGrid:
+    """A location's grid united with its neighbours', in the location's frame, cropped to the known
+    cells; planning masks and the distance to mapped walls are made on first use."""
+
+    vertex: int
+    cells: NDArray[np.uint8]  # (H, W) UNKNOWN / FREE / OCCUPIED
+    frame: GridFrame
+    _masks: dict[tuple[str, float], NDArray[np.bool_]] = field(default_factory=dict)
+    _wall_distance: NDArray[np.float32] | None = None
+
+    def mask(self, kind: str, radius: float) -> NDArray[np.bool_]:
+        """Cells the robot's centre may take: known free (``known``) or not occupied (``unknown``), eroded."""
+        key = (kind, radius)
+        if key not in self._masks:
+            base = self.cells == FREE if kind == "known" else self.cells != OCCUPIED
+            self._masks[key] = grid_search.inflate_free(base, radius, self.frame.resolution)
+        return self._masks[key]
+
+    @property
+    def wall_distance(self) -> NDArray[np.float32]:
+        """Metres from each cell centre to the nearest occupied cell centre."""
+        if self._wall_distance is None:
+            not_wall = (self.cells != OCCUPIED).astype(np.uint8)
+            self._wall_distance = cv2.distanceTransform(not_wall, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * np.float32(
+                self.frame.resolution
+            )
+        return self._wall_distance
+
+    def values_at(self, xy: NDArray, array: NDArray, outside: float | int) -> NDArray:
+        """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
+        cells = self.frame.to_cell(xy)
+        height, width = array.shape
+        inside = (cells[:, 0] >= 0) & (cells[:, 0] < height) & (cells[:, 1] >= 0) & (cells[:, 1] < width)
+        out = np.full(len(cells), outside, dtype=array.dtype)
+        out[inside] = array[cells[inside, 0], cells[inside, 1]]
+        return out
+
+    @property
+    def nbytes(self) -> int:
+        total = self.cells.nbytes + sum(m.nbytes for m in self._masks.values())
+        return int(total + (self._wall_distance.nbytes if self._wall_distance is not None else 0))
+
+
+def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConfig, radius: float) -> UnionGrid:
+    """``vertex``'s grid and its neighbours', warped into its frame by the edges (see the module docstring)."""
+    size = 2 * int(round(radius / grid_config.resolution))
+    occupied = np.zeros((size, size), bool)
+    free = np.zeros((size, size), bool)
+    members = [(vertex, np.zeros(3))] + graph.neighbours(vertex)
+    for member, pose in members:
+        # warp(grid, T) is the grid seen from frame T given in the grid's own frame: ``vertex``'s
+        # origin lies at inverse(T_vertex_member) in ``member``'s frame
+        seen = warp(graph.vertices[member].grid.to_grid(), inverse(pose), grid_config, size=size)
+        occupied |= seen == OCCUPIED
+        free |= seen == FREE
+    cells = np.full((size, size), UNKNOWN, np.uint8)
+    cells[free] = FREE
+    cells[occupied] = OCCUPIED  # a wall seen from any location stands
+    known_rows = np.flatnonzero((cells != UNKNOWN).any(axis=1))
+    known_cols = np.flatnonzero((cells != UNKNOWN).any(axis=0))
+    res = grid_config.resolution
+    if known_rows.size == 0:
+        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res))
+    r0, r1 = max(known_rows[0] - 2, 0), min(known_rows[-1] + 3, size)
+    c0, c1 = max(known_cols[0] - 2, 0), min(known_cols[-1] + 3, size)
+    origin = np.array([(c0 - size // 2) * res, (r0 - size // 2) * res])
+    return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res))
+
+
+class UnionGrids:
+    """Union grids of the locations visited lately (an LRU cache)."""
+
+    def __init__(self, graph: TopologicalGraph, grid_config: GridConfig, config: PlanningConfig) -> None:
+        self.graph = graph
+        self.grid_config = grid_config
+        self.config = config
+        self._cache: OrderedDict[int, UnionGrid] = OrderedDict()
+
+    def get(self, vertex: int) -> UnionGrid:
+        union = self._cache.get(vertex)
+        if union is None:
+            union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius)
+            self._cache[vertex] = union
+            if len(self._cache) > self.config.union_cache:
+                self._cache.popitem(last=False)
+        else:
+            self._cache.move_to_end(vertex)
+        return union
+
+    def cached(self, vertex: int) -> bool:
+        return vertex in self._cache
+
+    def clear(self) -> None:
+        self._cache.clear()
+
+    @property
+    def nbytes(self) -> int:
+        return sum(union.nbytes for union in self._cache.values())
+
+
+# ---------------------------------------------------------------------------------------------
+# the local planner
+
+
+class LocalPlanner:
+    """Plans in the current location's union grid, to the target the smoothing mode picks."""
+
+    def __init__(self, grids: UnionGrids, robot_radius: float, config: PlanningConfig) -> None:
+        self.grids = grids
+        self.config = config
+        resolution = grids.grid_config.resolution
+        self.wide = robot_radius + resolution / 2 + config.inflation_margin
+        self.tight = robot_radius + resolution / 2
+        self.levels = [("known", self.wide), ("known", self.tight), ("unknown", self.wide), ("unknown", self.tight)]
+
+    def target(self, union: UnionGrid, start: NDArray, route: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Where the local path goes (v_cur's frame). ``route`` (K, 2): the global path's points
+        after the robot: the next vertices' positions and, last, the goal."""
+        if self.config.smoothing == "none" or len(route) == 1:
+            return route[0]
+        # lookahead: the farthest point of the polyline robot -> route in the union grid's known free
+        # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m)
+        samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
+        free = union.values_at(samples, union.mask("known", self.wide + self.config.target_clearance), False)
+        beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
+        candidates = np.flatnonzero(free & beyond_next)
+        return samples[candidates[-1]] if len(candidates) else route[0]
+
+    def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
+        """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked."""
+        snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
+        if blocked_xy is None or not len(blocked_xy):
+            masks = lambda level: union.mask(*self.levels[level])  # noqa: E731 - the cached masks
+        else:
+            stamp = _stamp(union, blocked_xy)
+
+            def masks(level: int) -> NDArray[np.bool_]:
+                kind, radius = self.levels[level]
+                kernel = _disk(radius, union.frame.resolution)
+                return union.mask(kind, radius) & ~(cv2.dilate(stamp, kernel) > 0)
+
+        return plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels))
+
+    def new_obstacles(self, union: UnionGrid, pose: NDArray, points: NDArray) -> NDArray[np.float64]:
+        """Obstacle returns (N, 2+, robot frame) near the robot that no mapped wall explains, in v_cur's frame."""
+        near = points[np.hypot(points[:, 0], points[:, 1]) <= self.config.new_obstacle_range]
+        if not len(near):
+            return np.zeros((0, 2))
+        xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
+        far = union.values_at(xy, union.wall_distance, np.float32(np.inf)) > self.config.new_obstacle_distance
+        return xy[far]
+
+
+def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
+    samples = [polyline[:1]]
+    for a, b in zip(polyline[:-1], polyline[1:], strict=True):
+        count = max(int(np.ceil(np.hypot(*(b - a)) / step)), 1)
+        samples.append(a + (b - a) * (np.arange(1, count + 1) / count)[:, None])
+    return np.concatenate(samples)
+
+
+def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
+    stamp = np.zeros(union.cells.shape, np.uint8)
+    cells = union.frame.to_cell(xy)
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < stamp.shape[0]) & (cells[:, 1] >= 0) & (cells[:, 1] < stamp.shape[1])
+    stamp[cells[inside, 0], cells[inside, 1]] = 1
+    return stamp
+
+
+def _disk(radius: float, resolution: float) -> NDArray[np.uint8]:
+    r = int(np.ceil(radius / resolution))
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    return ((xx * xx + yy * yy) * resolution**2 <= radius * radius).astype(np.uint8)
