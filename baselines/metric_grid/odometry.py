@@ -2,7 +2,7 @@
 
 KISS-ICP (Vizzo et al., "KISS-ICP: In Defense of Point-to-Point ICP", RA-L 2023) registers each
 scan to a local voxel map with point-to-point ICP, a robust kernel and an adaptive threshold.
-What is specific to this benchmark's simulated lidar (FACTS.md, "Lidar odometry and pose
+What is specific to this benchmark's simulated lidar (docs/NOTES.md, "Lidar odometry and pose
 graphs", and measurements on the bundled scenarios):
 
 * floor and ceiling returns are removed before registration: a perfectly flat simulated floor

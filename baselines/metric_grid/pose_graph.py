@@ -12,7 +12,7 @@ SE(2) because the robot drives on a plane:
   with kiss-icp's point-to-point registration (coarse to fine), then checked for fitness, RMSE,
   geometric constraint (a corridor's walls alone cannot fix the position along it) and
   consistency with the estimate;
-* loop factors behind a Cauchy robust kernel (FACTS.md: it survived 10 false closures where
+* loop factors behind a Cauchy robust kernel (docs/NOTES.md: it survived 10 false closures where
   Huber did not), optimised incrementally with iSAM2 (``relinearizeSkip=1`` and one extra
   update after a closure), or in batch with Levenberg-Marquardt by ``optimize()``.
 

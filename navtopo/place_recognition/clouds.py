@@ -2,7 +2,7 @@
 
 The simulated lidar sits 0.6 m above the floor and sees the floor; floor hits carry no
 place information and dominate the voxel count, so every descriptor drops points below
-``min_z`` (FACTS.md: 0.15 m) and beyond the sensor range.
+``min_z`` (docs/NOTES.md: 0.15 m) and beyond the sensor range.
 """
 
 from __future__ import annotations

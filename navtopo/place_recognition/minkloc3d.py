@@ -7,7 +7,7 @@ lateral 1x1 projection of the level above it, then generalised-mean pooling into
 descriptor. MinkowskiEngine does not build on this CPU-only stack, so the sparse
 convolutions are the plain-torch ones of :mod:`.sparse` (hashed voxel keys).
 
-Two changes for this setting (FACTS.md, "Place recognition on 2 CPU cores"):
+Two changes for this setting (docs/NOTES.md, "Place recognition on 2 CPU cores"):
 
 * 0.2 m voxels of the scan with floor hits (z < 0.15 m) dropped: ~1,100 voxels per scan;
 * a BatchNorm on the pooled 256-d vector before L2 normalisation: without it the batch-hard

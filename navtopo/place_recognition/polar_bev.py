@@ -8,7 +8,7 @@ therefore leaves the descriptor exactly unchanged (up to binning); other heading
 so, and random yaw augmentation in training teaches the rest. The rings stay apart (a linear
 layer reads them in order) because distance to the structure is what tells places apart.
 
-FACTS.md ("Place recognition on 2 CPU cores"): this design trained ~3x faster per step than
+docs/NOTES.md ("Place recognition on 2 CPU cores"): this design trained ~3x faster per step than
 the MinkLoc3D network and reached recall@1 0.98 after one minute on generated corridor worlds;
 it stands beside MinkLoc3D (the paper's choice) and Scan Context in the registry.
 """

@@ -12,7 +12,7 @@ Point Cloud Map", IROS 2018:
   minimised over all circular column shifts; columns empty in either context are skipped.
   The best shift is the relative yaw (``compare`` returns it).
 
-FACTS.md measured recall@1/@5 0.64/0.85 with 10 ring-key candidates on generated corridor
+docs/NOTES.md measured recall@1/@5 0.64/0.85 with 10 ring-key candidates on generated corridor
 worlds (the ring key alone 0.69/0.89), ~7 ms per query.
 """
 

@@ -3,7 +3,7 @@
 The voxels of a batch are integer coordinates ``[batch, x, y, z]``. Each is hashed to one
 int64 key that is *linear* in the coordinates, ``key = ((b*S + x+O)*S + y+O)*S + z+O``, and
 the voxels are kept sorted by key. A neighbour at offset (dx, dy, dz) then has key
-``key + (dx*S + dy)*S + dz`` (FACTS.md: ~5x faster than per-offset coordinate lookups), and
+``key + (dx*S + dy)*S + dz`` (docs/NOTES.md: ~5x faster than per-offset coordinate lookups), and
 for one offset these wanted keys are sorted too, so one linear merge against the sorted keys
 finds every voxel's neighbour (a compiled loop: 6x faster than ``torch.searchsorted`` for a
 5^3 kernel over 34k voxels).

@@ -1,7 +1,7 @@
 """Training a learned place descriptor from arrays: clouds, 2D positions, world ids.
 
 The data come from whoever drives a simulator (``runners/``); this module only sees
-arrays. Metric learning as in MinkLoc3D (Sec. 3.3) with the settings FACTS.md measured on
+arrays. Metric learning as in MinkLoc3D (Sec. 3.3) with the settings docs/NOTES.md measured on
 two CPU cores:
 
 * a batch is ``batch_pairs`` anchor-positive pairs from ``worlds_per_batch`` worlds (16 pairs

@@ -1,0 +1,146 @@
+"""NavTopo's navigation against ground truth: Dijkstra and edge removal on hand-built graphs, the
+union grid's alignment, the goal server's conversion, and cold starts on ``tiny`` that localize
+without a pose and reach goals in other locations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from navtopo import geometry as se2
+from navtopo.graph import TopologicalGraph
+from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, CroppedGrid, GridConfig, grid_from_points
+from navtopo.navigation import goal_in_graph
+from navtopo.planning import GlobalPlanner, build_union_grid, path_positions
+from runners.mapping import MappingSystem, run_mapping
+from runners.navigation import TrialJob, run_trial_job
+from runners.results import RunDir
+from runners.sim import Simulator
+from runners.systems import get_system
+from scenarios import load_scenario
+
+GRID = GridConfig()
+
+
+def _graph(poses: list[list[float]], edges: list[tuple[int, int]], grids: list[np.ndarray] | None = None) -> TopologicalGraph:
+    """Vertices at the given poses (hints = truth), edges with the exact relative poses."""
+    graph = TopologicalGraph(4)
+    for i, pose in enumerate(poses):
+        grid = grids[i] if grids is not None else np.full((GRID.size, GRID.size), FREE, np.uint8)
+        graph.add_vertex(CroppedGrid.from_grid(grid), np.ones(4), pose, float(i))
+    for u, v in edges:
+        graph.add_edge(u, v, se2.between(poses[u], poses[v]))
+    return graph
+
+
+def test_dijkstra_follows_the_shortest_way_and_a_removed_edge_sends_it_round_the_loop():
+    # a square loop 0-1-2-3-0 of 4 m sides, with a 10 m spur 1-4
+    poses = [[0, 0, 0], [4, 0, np.pi / 2], [4, 4, np.pi], [0, 4, -np.pi / 2], [14, 0, 0]]
+    graph = _graph(poses, [(0, 1), (1, 2), (2, 3), (3, 0), (1, 4)])
+    planner = GlobalPlanner(graph)
+    planner.set_goal(1)
+    assert planner.path(0) == [0, 1] and planner.distance(0) == pytest.approx(4.0)
+    assert planner.path(4) == [4, 1]
+    assert planner.path(3) in ([3, 0, 1], [3, 2, 1])
+    planner.remove_edge(0, 1)  # the door between 0 and 1 is closed
+    assert planner.path(0) == [0, 3, 2, 1] and planner.distance(0) == pytest.approx(12.0)
+    planner.remove_edge(2, 1)
+    assert planner.path(0) is None  # no way left
+    planner.reset()
+    planner.set_goal(4)
+    assert planner.path(0) == [0, 1, 4]  # a new trial: every edge is back
+    # the vertices' positions along the path, composed in the first one's frame
+    positions = path_positions(graph, [0, 1, 4])
+    assert np.allclose(positions[:, :2], [[0, 0], [4, 0], [14, 0]], atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return load_scenario("tiny")
+
+
+def _true_grid(sim: Simulator, pose) -> np.ndarray:
+    return grid_from_points(sim.scan(np.asarray(pose, float)), GRID)
+
+
+def test_the_union_grid_of_two_locations_lines_up_with_ground_truth(tiny):
+    """Two locations 4 m apart along tiny's corridor, joined by their exact relative pose: the union
+    grid's walls coincide with the ground-truth walls, and each location's walls with the other's."""
+    a, b = np.array([2.0, 0.0, 0.3]), np.array([6.0, -0.2, 2.0])
+    with Simulator(tiny, seed=0) as sim:
+        grid_a, grid_b = _true_grid(sim, a), _true_grid(sim, b)
+    graph = _graph([list(a), list(b)], [(0, 1)], [grid_a, grid_b])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    occupied = np.argwhere(union.cells == OCCUPIED)
+    world = se2.transform_points(a, union.frame.to_world(occupied))  # a's frame -> the scenario frame
+    walls = tiny.world.to_world(np.argwhere(~tiny.world.free))
+    from scipy.spatial import cKDTree
+
+    distance, _ = cKDTree(walls).query(world)
+    assert np.mean(distance <= 0.15) >= 0.98, np.mean(distance <= 0.15)  # centres within 1.5 cells of GT walls
+    # b's walls, warped by the edge, fall on a's walls where both see them
+    b_only = build_union_grid(_graph([list(a), list(b)], [(0, 1)], [np.zeros_like(grid_a), grid_b]), 0, GRID, 25.0)
+    a_only = build_union_grid(_graph([list(a), list(b)], [(0, 1)], [grid_a, np.zeros_like(grid_b)]), 0, GRID, 25.0)
+    b_walls = b_only.frame.to_world(np.argwhere(b_only.cells == OCCUPIED))
+    a_walls = a_only.frame.to_world(np.argwhere(a_only.cells == OCCUPIED))
+    seen_by_a = a_only.values_at(b_walls, a_only.cells, UNKNOWN) != UNKNOWN
+    near, _ = cKDTree(a_walls).query(b_walls[seen_by_a])
+    assert seen_by_a.sum() > 100
+    assert np.median(near) < 1e-6  # most of b's wall cells land exactly on a's
+    assert np.mean(near <= 0.11) >= 0.85  # the rest within a cell, but for what one of them sees past (low furniture)
+
+
+def test_a_map_frame_goal_goes_to_the_location_whose_free_area_holds_it():
+    # two locations 3 m apart; a wall at x = 1.0 in front of location 0 hides the goal at (1.6, 0)
+    grid0 = np.full((GRID.size, GRID.size), FREE, np.uint8)
+    wall_col = GRID.size // 2 + 10  # x in [1.0, 1.1) in location 0's frame
+    grid0[:, wall_col] = OCCUPIED
+    grid0[:, wall_col + 1 :] = UNKNOWN
+    grid1 = np.full((GRID.size, GRID.size), FREE, np.uint8)
+    graph = _graph([[0, 0, 0], [3.0, 0, np.pi]], [(0, 1)], [grid0, grid1])
+    vertex, pose = goal_in_graph(graph, np.array([1.6, 0.0]), GRID)
+    assert vertex == 1  # location 0 is nearer (1.6 m against 1.4 m... by hint) but cannot see the goal
+    assert np.allclose(se2.transform_points([3.0, 0, np.pi], pose[None])[0], [1.6, 0.0])
+    vertex, pose = goal_in_graph(graph, np.array([0.5, 0.2]), GRID)
+    assert vertex == 0 and np.allclose(pose, [0.5, 0.2])
+
+
+@pytest.fixture(scope="module")
+def tiny_graph(tiny, tmp_path_factory):
+    """NavTopo's graph of tiny from one tour of its branches (precise odometry)."""
+    scenario = load_scenario("tiny")
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(scenario.route, axis=0).T))])
+    scenario.route = scenario.route[arc <= arc[-1] / 2]
+    run = RunDir(tmp_path_factory.mktemp("run"))
+    entry = get_system("navtopo")
+    reports = run_mapping(scenario, [MappingSystem(entry, entry.default_config())], run, seed=scenario.spec.seed)
+    return run, reports["navtopo"]
+
+
+def test_cold_starts_localize_without_a_pose_and_reach_goals_in_other_locations(tiny, tiny_graph):
+    """Two trials in one worker: each starts from nothing, localizes right, reaches its goal."""
+    run, report = tiny_graph
+    entry = get_system("navtopo")
+    job = TrialJob(
+        scenario=str(tiny.path),
+        system="navtopo",
+        config=entry.default_config().model_dump(mode="json"),
+        map_dir=str(run.map_dir("navtopo")),
+        trials=[0, 1],
+        seed=tiny.spec.seed,
+        anchors=report["anchors"],
+    )
+    records = run_trial_job(job)["records"]
+    for record in records:
+        assert record["success"], record["reason"]
+        assert record["efficiency"] >= 0.9
+        localized = record["startup_localization"]
+        assert localized["right"] and localized["error_m"] < 0.2 and localized["seconds"] <= 10.0
+        assert record["goal_conversion_error_m"] < 0.05  # precise odometry: the hints are the truth
+        assert record["tracking_error_m"]["max"] < 0.3
+    # the goals lie in other locations than the starts: the goal server routed over the graph
+    anchors = np.array([row[1:3] for row in report["anchors"]])
+    for trial in tiny.trials[:2]:
+        start_vertex = int(np.argmin(np.hypot(*(anchors - trial.start[:2]).T)))
+        goal_vertex = int(np.argmin(np.hypot(*(anchors - trial.goal).T)))
+        assert start_vertex != goal_vertex
