@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scenarios.routes import ROUTE_MARGIN_M, auto_route, polyline_length, waypoint_route
+from scenarios.routes import auto_route, polyline_length, route_space, waypoint_route
 from scenarios.schema import ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
 from scenarios.world import World, build_world, corridor_polygon, rectangle
@@ -142,14 +142,13 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
         raise ScenarioError(path, "world", str(exc)) from None
     check_connected(spec, path, world)
     radius = spec.robot.radius
-    passable = world.eroded(radius)
+    space = route_space(world, radius)
+    passable = space.passable
     route_spec = spec.mapping_route
     if route_spec.waypoints is not None:
         for i, point in enumerate(route_spec.waypoints):
             _check_point(path, f"mapping_route.waypoints.{i}", point, world, passable, radius)
-        route, bad = waypoint_route(
-            world, passable, np.asarray(route_spec.waypoints, float), world.eroded(radius + ROUTE_MARGIN_M)
-        )
+        route, bad = waypoint_route(world, passable, np.asarray(route_spec.waypoints, float), space.roomy, space.fit)
         if route is None:
             raise ScenarioError(
                 path,
@@ -159,7 +158,7 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
     else:
         assert route_spec.auto is not None
         try:
-            route = auto_route(world, passable, route_spec.auto.min_length, np.random.default_rng(rng.integers(2**32)))
+            route = auto_route(world, space, route_spec.auto.min_length, np.random.default_rng(rng.integers(2**32)))
         except ValueError as exc:
             raise ScenarioError(path, "mapping_route.auto", str(exc)) from None
     scenario = Scenario(spec=spec, path=path, world=world, route=route)
@@ -173,8 +172,14 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
     trial_rng = np.random.default_rng(rng.integers(2**32))
     if isinstance(spec.trials, TrialsGenerate):
         gen = spec.trials.generate
+        # generated ends are joined to the route through space the robot fits in with a margin
+        # (no trial behind a gap it could only scrape through)
+        fit_labels, _ = ndimage.label(space.fit, structure=np.ones((3, 3), bool))
+        fit_reachable = fit_labels == fit_labels[tuple(start_cell)] if space.fit[tuple(start_cell)] else reachable
         try:
-            scenario.trials = generate_trials(world, reachable, gen.count, gen.min_distance, trial_rng, gen.max_distance)
+            scenario.trials = generate_trials(
+                world, reachable, gen.count, gen.min_distance, trial_rng, gen.max_distance, within=fit_reachable
+            )
         except ValueError as exc:
             raise ScenarioError(path, "trials.generate", str(exc)) from None
     else:

@@ -52,10 +52,13 @@ def generate_trials(
     min_distance: float,
     rng: np.random.Generator,
     max_distance: float | None = None,
+    within: NDArray[np.bool_] | None = None,
 ) -> list[Trial]:
-    """Sample ``count`` trials; both ends in the (margin-)eroded free space, shortest path length
-    in [min_distance, max_distance]."""
+    """Sample ``count`` trials; both ends in the (margin-)eroded free space (and in ``within`` if
+    given), shortest path length in ``passable`` in [min_distance, max_distance]."""
     sample_space = passable & (world.clearance >= (world.clearance[passable].min() if passable.any() else 0) + SAMPLE_MARGIN_M)
+    if within is not None:
+        sample_space &= within
     cells = np.argwhere(sample_space)
     if len(cells) == 0:
         raise ValueError("no free space to sample trials from")

@@ -94,9 +94,12 @@ class World:
 
     def clearance_at(self, xy: NDArray | tuple[float, float]) -> float:
         """Clearance at a point (bilinear in the clearance raster; 0 outside the raster)."""
-        rc = (np.asarray(xy, dtype=np.float64)[::-1] - self.origin[::-1]) / self.resolution - 0.5
-        values = ndimage.map_coordinates(self.clearance, rc[:, None], order=1, cval=0.0)
-        return float(values[0])
+        return float(self.clearances_at(np.asarray(xy, dtype=np.float64)[None, :2])[0])
+
+    def clearances_at(self, xy: NDArray) -> NDArray[np.float64]:
+        """(N,) clearance at points (N, 2), bilinear in the clearance raster; 0 outside it."""
+        rc = (np.asarray(xy, dtype=np.float64).reshape(-1, 2)[:, ::-1] - self.origin[::-1]) / self.resolution - 0.5
+        return ndimage.map_coordinates(self.clearance, rc.T, order=1, cval=0.0).astype(np.float64)
 
     @property
     def wall_mask(self) -> NDArray[np.bool_]:
