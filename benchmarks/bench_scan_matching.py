@@ -18,6 +18,11 @@ the other way. Each pose gives a PyBullet lidar scan (runners.sim) and a locatio
   hold them (``prepared_match_ms``, after ``prepare_ms_per_grid``); per grid build and per scan.
 
     python benchmarks/bench_scan_matching.py --scenario corridor_150m --poses 300
+
+A generated scene instead of a scenario file (``scenarios.generators.corridor_tree``, as tuning
+asks: seeds disjoint from the benchmark's), optionally with lidar range noise:
+
+    python benchmarks/bench_scan_matching.py --generated 150 --seed 101 --range-noise 0.01
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ import argparse
 import itertools
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -33,7 +39,34 @@ from navtopo.geometry import between, compose, wrap_angle
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, match, verdict
 from runners.sim import Simulator
-from scenarios import load_scenario
+from scenarios import Scenario, generators, load_scenario
+from scenarios.scenario import build_scenario
+from scenarios.schema import parse_spec
+
+
+def generated_scenario(length: float, seed: int, range_noise: float = 0.0) -> Scenario:
+    """A corridor tree of ``length`` m (``generators.corridor_tree``), its route, no trials."""
+    spec = generators.corridor_tree(length, seed, trials=1)
+    spec["sensor"] = {**spec.get("sensor", {}), "range_noise": range_noise}
+    if range_noise:
+        spec["name"] = f"{spec['name']}_range_noise_{range_noise:g}"
+    origin = Path(f"<generated {spec['name']}>")
+    return build_scenario(parse_spec(spec, origin), origin, with_trials=False)
+
+
+def scan_grids(scenario: Scenario, poses: np.ndarray, seed: int, grid_config: GridConfig) -> tuple[list, list, list]:
+    """A location grid per pose from a simulated scan; (grids, scan ms, grid ms)."""
+    scan_ms, grid_ms, grids = [], [], []
+    with Simulator(scenario, seed=seed) as sim:
+        grid_from_points(sim.scan(poses[0]), grid_config)  # compile / load the numba cache
+        for pose in poses:
+            start = time.perf_counter()
+            points = sim.scan(pose)
+            scan_ms.append((time.perf_counter() - start) * 1e3)
+            start = time.perf_counter()
+            grids.append(grid_from_points(points, grid_config))
+            grid_ms.append((time.perf_counter() - start) * 1e3)
+    return grids, scan_ms, grid_ms
 
 
 def route_poses(scenario, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -169,6 +202,15 @@ def _r(value: float) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scenario", default="corridor_150m")
+    parser.add_argument(
+        "--generated",
+        type=float,
+        metavar="LENGTH",
+        help="instead of --scenario: a generated corridor tree of LENGTH m with scene seed --seed",
+    )
+    parser.add_argument("--range-noise", type=float, default=0.0, help="m; lidar range noise of the generated scene")
+    parser.add_argument("--min-wall-agreement", type=float, help="override MatchingConfig.min_wall_agreement")
+    parser.add_argument("--min-score", type=float, help="override MatchingConfig.min_score")
     parser.add_argument("--poses", type=int, default=300)
     parser.add_argument("--near", type=float, default=5.0, help="near pairs: at most this far, m")
     parser.add_argument("--far", type=float, default=15.0, help="far pairs: at least this far, m")
@@ -180,20 +222,17 @@ def main() -> None:
     args = parser.parse_args()
 
     rng = np.random.default_rng(args.seed)
-    scenario = load_scenario(args.scenario, with_trials=False)
+    if args.generated is not None:
+        scenario = generated_scenario(args.generated, args.seed, args.range_noise)
+    else:
+        if args.range_noise:
+            parser.error("--range-noise applies to --generated scenes (a scenario file sets sensor.range_noise)")
+        scenario = load_scenario(args.scenario, with_trials=False)
     grid_config = GridConfig()
-    config = MatchingConfig()
+    overrides = {"min_wall_agreement": args.min_wall_agreement, "min_score": args.min_score}
+    config = MatchingConfig(**{key: value for key, value in overrides.items() if value is not None})
     poses = route_poses(scenario, args.poses, rng)
-    scan_ms, grid_ms, grids = [], [], []
-    with Simulator(scenario, seed=args.seed) as sim:
-        grid_from_points(sim.scan(poses[0]), grid_config)  # compile / load the numba cache
-        for pose in poses:
-            start = time.perf_counter()
-            points = sim.scan(pose)
-            scan_ms.append((time.perf_counter() - start) * 1e3)
-            start = time.perf_counter()
-            grids.append(grid_from_points(points, grid_config))
-            grid_ms.append((time.perf_counter() - start) * 1e3)
+    grids, scan_ms, grid_ms = scan_grids(scenario, poses, args.seed, grid_config)
     match(grids[0], grids[1])  # compile / load the numba cache
 
     near_pairs = pair_sample(poses, 0.0, args.near, args.near_pairs, rng)
@@ -228,6 +267,8 @@ def main() -> None:
 
     summary = {
         "scenario": scenario.name,
+        "min_wall_agreement": config.min_wall_agreement,
+        "min_score": config.min_score,
         "poses": len(poses),
         "seed": args.seed,
         "scan_ms_median": _r(np.median(scan_ms)),

@@ -1,0 +1,221 @@
+"""Shared by the ``tune_*.py`` scripts: generated scenes in the benchmark's two settings, and
+mapping drives recorded once and replayed offline.
+
+The tuning rule (BENCHMARKS.md): parameters are chosen on scenes from ``scenarios.generators``
+with seeds disjoint from the benchmark's, never on a bundled benchmark scene (corridor_150m,
+tiny, ...). ``generated_scenario`` refuses the benchmark's seeds.
+
+Settings, as the benchmark defines them:
+
+* ``precise``: exact wheel odometry, no lidar range noise (the scenario defaults);
+* ``noisy``: wheel odometry with 2 % / 0.5°-per-metre random walks and 0.01 m lidar range noise.
+
+A recorded drive is what ``runners.mapping.run_mapping`` feeds every system: the robot follows
+the scenario's mapping route on its true pose (the shared ``PathFollower``), the simulator's
+noise comes from the scenario seed's mapping stream, and each tick's ``Observation`` (stamp,
+float32 points, odometry) is stored with the true pose, in an ``.npz`` under a cache folder
+(``data/`` is gitignored).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from navtopo import geometry as se2
+from navtopo.follower import FollowerConfig, PathFollower
+from navtopo.types import Observation
+from runners.mapping import ROUTE_GOAL_TOLERANCE_M, STUCK_S
+from runners.sim import MAPPING_STREAM, Simulator
+from scenarios import Scenario, generators
+from scenarios.scenario import build_scenario
+from scenarios.schema import parse_spec
+
+#: seeds of the benchmark's own scenes and runs: never used for tuning
+BENCHMARK_SEEDS = frozenset({1, 7, 11, 150})
+
+SETTINGS: dict[str, dict[str, Any]] = {
+    "precise": {"odometry": {"noise": None}, "sensor": {"range_noise": 0.0}},
+    "noisy": {
+        "odometry": {"noise": {"translation": 0.02, "rotation_deg_per_m": 0.5}},
+        "sensor": {"range_noise": 0.01},
+    },
+}
+
+DEFAULT_CACHE = Path("data/tuning")
+
+
+def generated_spec(kind: str, length: float, seed: int, setting: str, route_factor: float = 6.0) -> dict[str, Any]:
+    """A scenario dict of a generated scene in one setting.
+
+    kind: ``tree`` (``generators.corridor_tree``) or ``ring`` (``generators.ring_building``, if
+    that generator exists in this revision).
+    """
+    if seed in BENCHMARK_SEEDS:
+        raise SystemExit(f"seed {seed} is one of the benchmark's ({sorted(BENCHMARK_SEEDS)}): tune on other seeds")
+    if setting not in SETTINGS:
+        raise SystemExit(f"unknown setting {setting!r}: one of {sorted(SETTINGS)}")
+    if kind == "tree":
+        spec = generators.corridor_tree(length, seed, route_factor=route_factor, trials=1)
+    elif kind == "ring":
+        ring = getattr(generators, "ring_building", None)
+        if ring is None:
+            raise SystemExit("scenarios.generators has no ring_building in this revision")
+        spec = ring(length, seed, route_factor=route_factor, trials=1)
+    else:
+        raise SystemExit(f"unknown scene kind {kind!r}: tree or ring")
+    spec["name"] = f"{spec['name']}_{setting}"
+    spec["description"] = f"{spec.get('description', '')}; tuning setting {setting}"
+    spec["odometry"] = dict(SETTINGS[setting]["odometry"])
+    spec["sensor"] = {**spec.get("sensor", {}), **SETTINGS[setting]["sensor"]}
+    return spec
+
+
+def generated_scenario(kind: str, length: float, seed: int, setting: str, route_factor: float = 6.0) -> Scenario:
+    """The resolved scenario (mapping route, no trials) of ``generated_spec``."""
+    spec = generated_spec(kind, length, seed, setting, route_factor)
+    origin = Path(f"<generated {spec['name']}>")
+    return build_scenario(parse_spec(spec, origin), origin, with_trials=False)
+
+
+def scene_key(kind: str, length: float, seed: int, setting: str, route_factor: float) -> str:
+    return f"{kind}{int(round(length))}m_s{seed}_r{route_factor:g}_{setting}"
+
+
+@dataclass
+class Recording:
+    """One mapping drive: per tick the observation and the true pose (scenario frame)."""
+
+    stamps: NDArray[np.float64]  # (T,)
+    odom: NDArray[np.float64]  # (T, 3) odometry frame
+    true: NDArray[np.float64]  # (T, 3) scenario frame
+    offsets: NDArray[np.int64]  # (T + 1,) into points
+    points: NDArray[np.float32]  # (sum N, 3) robot frame
+    meta: dict[str, Any]
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def observation(self, k: int) -> Observation:
+        return Observation(
+            stamp=float(self.stamps[k]), points=self.points[self.offsets[k] : self.offsets[k + 1]], odom=self.odom[k].copy()
+        )
+
+    def true_in_map(self, start: NDArray) -> NDArray[np.float64]:
+        """(T, 3) true poses in the map frame (the frame of the drive's first pose, ``start``)."""
+        return se2.between(np.asarray(start, dtype=np.float64)[None, :], self.true)
+
+    def save(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(
+            tmp,
+            stamps=self.stamps,
+            odom=self.odom,
+            true=self.true,
+            offsets=self.offsets,
+            points=self.points,
+            meta=np.array(json.dumps(self.meta)),
+        )
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> Recording:
+        with np.load(path) as data:
+            return cls(data["stamps"], data["odom"], data["true"], data["offsets"], data["points"], json.loads(str(data["meta"])))
+
+
+def record_drive(scenario: Scenario, seed: int, progress: bool = True) -> Recording:
+    """Drive the scenario's mapping route as ``runners.mapping.run_mapping`` does, recording every tick."""
+    robot = scenario.spec.robot
+    started = time.perf_counter()
+    with Simulator(scenario, seed=seed) as sim:
+        sim.reset(scenario.route_start, stream=(MAPPING_STREAM,))
+        follower = PathFollower(
+            FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M)
+        )
+        follower.set_path(scenario.route)
+        max_ticks = int((3.0 * scenario.route_length_m / robot.max_linear + 600.0) * scenario.spec.sensor.rate_hz)
+        stamps, odom, true, clouds = [], [], [], []
+        progress_mark, progress_time, next_report = -1.0, 0.0, 100.0
+        for _ in range(max_ticks):
+            obs = sim.observe()
+            stamps.append(obs.stamp)
+            odom.append(obs.odom)
+            true.append(sim.true_pose)
+            clouds.append(obs.points)
+            command = follower.command(sim.true_pose)
+            if follower.reached:
+                break
+            if follower.progress > progress_mark + 0.1:
+                progress_mark, progress_time = follower.progress, sim.time
+            elif sim.time - progress_time > STUCK_S:
+                raise RuntimeError(f"{scenario.name}: the mapping route is blocked at {sim.true_pose[:2]}")
+            if progress and sim.travelled_m >= next_report:
+                print(f"  {scenario.name}: {sim.travelled_m:.0f} / {scenario.route_length_m:.0f} m", flush=True)
+                next_report += 100.0
+            sim.step(command)
+        else:
+            raise RuntimeError(f"{scenario.name}: mapping route not completed within {max_ticks} ticks")
+        collisions, travelled = sim.collisions, sim.travelled_m
+    counts = np.array([len(c) for c in clouds], dtype=np.int64)
+    meta = {
+        "scenario": scenario.name,
+        "sim_seed": seed,
+        "route_length_m": round(scenario.route_length_m, 3),
+        "travelled_m": round(travelled, 3),
+        "scans": len(stamps),
+        "collisions": collisions,
+        "record_s": round(time.perf_counter() - started, 1),
+        "route_start": [float(v) for v in scenario.route_start],
+        **git_state(),
+    }
+    return Recording(
+        np.asarray(stamps, dtype=np.float64),
+        np.asarray(odom, dtype=np.float64).reshape(-1, 3),
+        np.asarray(true, dtype=np.float64).reshape(-1, 3),
+        np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        np.concatenate(clouds).astype(np.float32) if clouds else np.zeros((0, 3), np.float32),
+        meta,
+    )
+
+
+def recording(
+    cache: Path, kind: str, length: float, seed: int, setting: str, route_factor: float
+) -> tuple[Scenario, Recording, str]:
+    """The scene and its recorded mapping drive, from the cache or recorded now (and cached)."""
+    scenario = generated_scenario(kind, length, seed, setting, route_factor)
+    key = scene_key(kind, length, seed, setting, route_factor)
+    path = Path(cache) / "drives" / f"{key}.npz"
+    if path.is_file():
+        rec = Recording.load(path)
+        revision = git_state()["git_revision"]
+        if rec.meta.get("git_revision") != revision:
+            print(f"note: {path.name} was recorded at {rec.meta.get('git_revision')}, the code is at {revision}", flush=True)
+        return scenario, rec, key
+    print(f"recording {key} ({scenario.route_length_m:.0f} m route) ...", flush=True)
+    rec = record_drive(scenario, seed=int(scenario.spec.seed))
+    rec.save(path)
+    print(f"  {rec.meta['scans']} scans in {rec.meta['record_s']} s, {rec.meta['collisions']} collisions", flush=True)
+    return scenario, rec, key
+
+
+def git_state() -> dict[str, Any]:
+    """The revision of the code that ran, and whether its tracked files differed from it."""
+    try:
+        revision = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout
+        return {"git_revision": revision, "git_dirty": bool(dirty.strip())}
+    except (OSError, subprocess.CalledProcessError):
+        return {"git_revision": None, "git_dirty": None}
+
+
+def parse_list(text: str, kind: type = str) -> list:
+    return [kind(item) for item in text.split(",") if item.strip()]
