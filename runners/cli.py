@@ -76,6 +76,10 @@ def run(
     stop_tolerance: Annotated[
         float, typer.Option(help="m: every system that stops by its own estimate stops this close to the goal", min=0.01)
     ] = 0.35,
+    maps_from: Annotated[
+        Path | None,
+        typer.Option(help="reuse the maps of an earlier run (same scenario, seed, setting): navigation trials only"),
+    ] = None,
 ) -> None:
     """Map each scenario's route with every system, then run the navigation trials.
 
@@ -161,6 +165,19 @@ def run(
     loaded = []
     for name in scenarios:
         loaded.append(_load(name))
+    if maps_from is not None:
+        from runners.protocol import apply_setting, setting_of
+        from runners.run import MapsFromError, check_maps_from
+
+        if len(loaded) > 1 or len(seed_list) > 1 or len(setting_list) > 1:
+            fail("--maps-from serves one scenario, one seed and one setting")
+        scenario = apply_setting(loaded[0], setting_list[0])
+        try:
+            check_maps_from(
+                maps_from, scenario, scenario.spec.seed if seed_list[0] is None else seed_list[0], setting_of(scenario), names
+            )
+        except MapsFromError as exc:
+            fail(str(exc))
     for scenario in loaded:
         for setting_name in setting_list:
             for s in seed_list:
@@ -177,6 +194,7 @@ def run(
                     config_overrides=overrides,
                     setting=setting_name,
                     protocol=protocol,
+                    maps_from=maps_from,
                 )
                 _run_one(scenario, options, execute)
 

@@ -6,6 +6,7 @@ import datetime as dt
 import hashlib
 import os
 import platform
+import shutil
 import socket
 import subprocess
 from collections.abc import Callable
@@ -42,6 +43,7 @@ class RunOptions:
     results_root: Path = Path("results")
     config_overrides: dict[str, Any] | None = None  # {system: {key: value, ...}} merged over the defaults
     setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own noise
+    maps_from: Path | None = None  # reuse the maps of this earlier run of the same scenario, seed and setting
     protocol: TrialProtocol = field(default_factory=TrialProtocol)
 
 
@@ -180,6 +182,9 @@ def execute(
     say("run_dir", run.root)
     entries = {name: get_system(name) for name in systems}
 
+    if options.maps_from is not None and options.resume is None:
+        reuse_maps(options.maps_from, run, systems, manifest_of_run=read_json(run.manifest_path))
+
     # stage 1: mapping (skipped for systems whose map and report are already there)
     todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
     if todo:
@@ -258,6 +263,42 @@ def execute(
             poll()
     write_summary(run, systems, mapping)
     return run
+
+
+class MapsFromError(ValueError):
+    """--maps-from names a run whose maps cannot serve this one."""
+
+
+def check_maps_from(source: Path, scenario: Scenario, seed: int, setting: str, systems: list[str]) -> None:
+    """Refuse a source run of another scenario (file), seed or setting, or without a system's map."""
+    manifest_path = source / "manifest.json"
+    try:
+        manifest = read_json(manifest_path)
+    except (OSError, ValueError) as exc:
+        raise MapsFromError(f"{manifest_path}: not a readable run manifest ({exc})") from None
+    if not isinstance(manifest, dict):
+        raise MapsFromError(f"{manifest_path}: not a run manifest")
+    if manifest.get("scenario_sha256") != scenario_fingerprint(scenario):
+        raise MapsFromError(f"{source}: mapped another scenario (or the scenario file changed since)")
+    if manifest.get("seed") != seed or manifest.get("setting", "precise") != setting:
+        raise MapsFromError(
+            f"{source}: mapped with seed {manifest.get('seed')} in setting {manifest.get('setting')}, "
+            f"not seed {seed} in setting {setting}"
+        )
+    for name in systems:
+        report = source / "mapping" / f"{name}.json"
+        if not report.is_file() or not (source / "maps" / name).is_dir():
+            raise MapsFromError(f"{source}: holds no map of {name!r} (mapping/{name}.json or maps/{name} missing)")
+
+
+def reuse_maps(source: Path, run: RunDir, systems: list[str], manifest_of_run: dict[str, Any]) -> None:
+    """Copy the maps and mapping reports of ``source`` into ``run`` (its mapping stage then skips them)."""
+    for name in systems:
+        shutil.copytree(source / "maps" / name, run.map_dir(name), dirs_exist_ok=True)
+        report = read_json(source / "mapping" / f"{name}.json")
+        report["maps_from"] = str(source)
+        write_json(run.mapping_path(name), report)
+    write_json(run.manifest_path, {**manifest_of_run, "maps_from": str(source)})
 
 
 def write_summary(run: RunDir, systems: list[str], mapping: dict[str, dict]) -> dict[str, Any]:

@@ -156,3 +156,25 @@ def test_a_dead_worker_fails_the_trial_it_was_running_and_leaves_the_rest_for_re
     assert run.incomplete == [("oracle", 2)]
     lines = (out / "trials.jsonl").read_text().splitlines()
     assert len(lines) == 2
+
+
+def test_maps_from_an_earlier_run_skips_mapping_and_refuses_another_seed(tmp_path):
+    first = tmp_path / "first"
+    result = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--trials", "0", "--out", str(first)])
+    assert result.exit_code == 0, result.output
+    second = tmp_path / "second"
+    result = CliRunner().invoke(
+        app, ["run", "tiny", "--systems", "oracle", "--trials", "1", "--maps-from", str(first), "--out", str(second)]
+    )
+    assert result.exit_code == 0, result.output
+    mapping = json.loads((second / "mapping" / "oracle.json").read_text())
+    assert (
+        mapping["maps_from"] == str(first)
+        and mapping["scans"] == json.loads((first / "mapping" / "oracle.json").read_text())["scans"]
+    )
+    assert "mapping tiny" not in result.output  # no route was driven
+    assert [r["trial"] for r in RunDir(second).read_trials()] == [0]
+    refused = CliRunner().invoke(
+        app, ["run", "tiny", "--systems", "oracle", "--seed", "5", "--maps-from", str(first), "--out", str(tmp_path / "x")]
+    )
+    assert refused.exit_code == 2 and "seed" in refused.output and not (tmp_path / "x").exists()
