@@ -1,7 +1,8 @@
 """The PyBullet world: static walls, obstacles, floor and ceiling; a unicycle robot; a 3D lidar.
 
 * One static concave triangle mesh holds the walls (the world's wall segments extruded to
-  ``wall_height``), every obstacle box (sides and top), the floor and the ceiling. It is written
+  ``wall_height``), every obstacle box (sides and top; with ``with_changes``, the scenario's
+  navigation-time ``world.changes`` boxes too), the floor and the ceiling. It is written
   as an OBJ file (no vertex limit, FACTS.md) and loaded in DIRECT mode.
 * The robot is a cylinder of the scenario's radius, 1 cm above the floor. Motion is unicycle
   kinematics in substeps of ``SUBSTEP_S``; a substep that would collide (PyBullet closest points
@@ -46,8 +47,9 @@ def _quad(a: NDArray, b: NDArray, z0: float, z1: float) -> tuple[NDArray, NDArra
     return v, np.array([[0, 1, 2], [0, 2, 3]])
 
 
-def world_mesh(scenario: Scenario) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """Vertices (V, 3) and triangles (T, 3) of the static world."""
+def world_mesh(scenario: Scenario, with_changes: bool = False) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Vertices (V, 3) and triangles (T, 3) of the static world; with the scenario's
+    navigation-time ``world.changes`` as boxes too if ``with_changes``."""
     world = scenario.world
     height = world.wall_height
     seg = world.wall_segments
@@ -61,7 +63,8 @@ def world_mesh(scenario: Scenario) -> tuple[NDArray[np.float64], NDArray[np.int6
     vertices = [wall_v]
     faces = [wall_f]
     count = len(wall_v)
-    for ob in world.obstacles:
+    boxes = [*world.obstacles, *(scenario.spec.world.changes if with_changes else [])]
+    for ob in boxes:
         c, s = np.cos(np.radians(ob.yaw)), np.sin(np.radians(ob.yaw))
         hx, hy = ob.size[0] / 2.0, ob.size[1] / 2.0
         corners = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]]) @ np.array([[c, s], [-s, c]]) + ob.center
@@ -105,10 +108,15 @@ class StepResult:
 
 
 class Simulator:
-    """A scenario's world in PyBullet (DIRECT), a robot in it and its sensors."""
+    """A scenario's world in PyBullet (DIRECT), a robot in it and its sensors.
 
-    def __init__(self, scenario: Scenario, seed: int = 0) -> None:
+    ``with_changes``: build the scenario's ``world.changes`` (boxes that appear only in the
+    navigation stage) into the static world; the mapping stage runs without them. The ground
+    truth of that stage is ``scenario.navigation_world``."""
+
+    def __init__(self, scenario: Scenario, seed: int = 0, with_changes: bool = False) -> None:
         self.scenario = scenario
+        self.with_changes = bool(with_changes)
         self.robot_spec = scenario.spec.robot
         self.sensor = scenario.spec.sensor
         self.noise = scenario.spec.odometry.noise
@@ -116,7 +124,7 @@ class Simulator:
         self.rng = np.random.default_rng([self.seed, NOISE_SALT])
         self.client = pb.connect(pb.DIRECT)
         pb.setPhysicsEngineParameter(numSolverIterations=1, physicsClientId=self.client)
-        vertices, faces = world_mesh(scenario)
+        vertices, faces = world_mesh(scenario, with_changes=self.with_changes)
         with tempfile.TemporaryDirectory(prefix="navtopo-sim-") as tmp:
             obj = Path(tmp) / "world.obj"
             write_obj(obj, vertices, faces)

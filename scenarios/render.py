@@ -1,4 +1,5 @@
-"""A figure of a scenario: ground-truth map, obstacles by height, the mapping route and the trials."""
+"""A figure of a scenario: ground-truth map, obstacles by height, navigation-time changes (red,
+hatched), the mapping route and the trials (their GT shortest paths with the changes in place)."""
 
 from __future__ import annotations
 
@@ -39,6 +40,20 @@ def draw_world(ax: plt.Axes, scenario: Scenario, wall_shade: float = 0.18) -> No
         sm = cm.ScalarMappable(norm=norm, cmap=cmap)
         bar = plt.colorbar(sm, ax=ax, fraction=0.025, pad=0.01)
         bar.set_label("obstacle height (m)")
+    for k, change in enumerate(scenario.spec.world.changes):  # boxes that appear only when navigating
+        poly = rectangle(change.center, change.size, change.yaw)
+        ax.add_patch(
+            PolygonPatch(
+                np.asarray(poly.exterior.coords),
+                closed=True,
+                facecolor=(0.85, 0.1, 0.1, 0.25),
+                edgecolor=(0.85, 0.1, 0.1),
+                hatch="xxx",
+                linewidth=1.2,
+                zorder=3.5,
+                label="change (navigation stage only)" if k == 0 else None,
+            )
+        )
 
 
 def render(scenario: Scenario, output: Path, show_route: bool = True, show_trials: bool = True, dpi: int = 200) -> Path:
@@ -97,7 +112,9 @@ def render(scenario: Scenario, output: Path, show_route: bool = True, show_trial
         f"{scenario.name}: "
         + (f"{summary['corridor_length_m']:.0f} m of corridor, " if summary["corridor_length_m"] else "")
         + f"{summary['free_area_m2']:.0f} m² free, "
-        f"{len(scenario.trials)} trials" + (f" (mean {mean:.1f} m)" if mean else ""),
+        f"{len(scenario.trials)} trials"
+        + (f" (mean {mean:.1f} m)" if mean else "")
+        + (f", {summary['changes']} change(s) at navigation time" if summary["changes"] else ""),
         fontsize=10,
     )
     return save_map_figure(fig, ax, scenario, output, dpi, legend_columns=4)

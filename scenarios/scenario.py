@@ -13,18 +13,28 @@ from scipy import ndimage
 from scenarios.routes import auto_route, polyline_length, route_space, waypoint_route
 from scenarios.schema import ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
-from scenarios.world import World, build_world, corridor_polygon, rectangle
+from scenarios.world import World, build_world, corridor_polygon, rectangle, with_changes
 
 BUNDLED_DIR = Path(__file__).resolve().parent / "bundled"
 
 
 @dataclass
 class Scenario:
+    """``world`` is the mapping stage's ground truth; ``navigation_world`` the navigation stage's:
+    the same object unless the file has ``world.changes`` (boxes that appear only when navigating),
+    then a world with those boxes in its free space. Trials (their ``shortest_m``) are resolved on
+    the navigation world: efficiency is measured against the path that is really available."""
+
     spec: ScenarioSpec
     path: Path
     world: World
     route: NDArray[np.float64]  # (K, 2) mapping route polyline, scenario frame
     trials: list[Trial] = field(default_factory=list)
+    navigation_world: World = None  # type: ignore[assignment]  # default: ``world`` itself
+
+    def __post_init__(self) -> None:
+        if self.navigation_world is None:
+            self.navigation_world = with_changes(self.world)
 
     @property
     def name(self) -> str:
@@ -38,6 +48,13 @@ class Scenario:
     def passable(self) -> NDArray[np.bool_]:
         """Cells where the robot's centre may be: free space eroded by the robot radius."""
         return self.world.eroded(self.spec.robot.radius)
+
+    @cached_property
+    def navigation_passable(self) -> NDArray[np.bool_]:
+        """``passable`` of the navigation world (changes in place); ``passable`` if there are none."""
+        if self.navigation_world is self.world:
+            return self.passable
+        return self.navigation_world.eroded(self.spec.robot.radius)
 
     @property
     def route_start(self) -> NDArray[np.float64]:
@@ -64,6 +81,7 @@ class Scenario:
             "trial_distance_max_m": round(float(np.max(distances)), 3) if distances else None,
             "bounds_m": [round(v, 3) for v in (xmin, ymin, xmax, ymax)],
             "obstacles": len(self.spec.world.obstacles),
+            "changes": len(self.spec.world.changes),
             "raster": {"resolution": self.world.resolution, "shape": list(self.world.shape)},
             "sensor_rays": self.spec.sensor.rays,
         }
@@ -86,11 +104,13 @@ def resolve_path(name_or_path: str | Path) -> Path:
     )
 
 
-def _check_point(scenario_file: Path, key: str, xy, world: World, passable: NDArray[np.bool_], radius: float) -> None:
+def _check_point(
+    scenario_file: Path, key: str, xy, world: World, passable: NDArray[np.bool_], radius: float, note: str = ""
+) -> None:
     cell = world.to_cell(np.asarray(xy, float))
     if not world.inside(cell) or not passable[tuple(cell)]:
         clearance = world.clearance_at(np.asarray(xy, float)) if world.inside(cell) else 0.0
-        where = "inside a wall or obstacle" if clearance <= 0 else f"only {clearance:.2f} m from a wall"
+        where = ("inside a wall or obstacle" if clearance <= 0 else f"only {clearance:.2f} m from a wall") + note
         raise ScenarioError(scenario_file, key, f"{list(xy)} is {where}; the robot (radius {radius} m) needs more room")
 
 
@@ -165,33 +185,44 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
     scenario.__dict__["passable"] = passable
     if not with_trials:
         return scenario
-    # trials must be reachable from where the route runs
-    start_cell = world.to_cell(route[0])
-    labels, _ = ndimage.label(passable, structure=np.ones((3, 3), bool))
-    reachable = labels == labels[tuple(start_cell)]
+    # trials are resolved in the navigation stage's world (changes in place), reachable from
+    # where the route runs (or, if a change stands there, from the largest piece left)
+    nav = scenario.navigation_world
+    nav_space = space if nav is world else route_space(nav, radius)
+    nav_passable = nav_space.passable
+    scenario.__dict__["navigation_passable"] = nav_passable
+    start_cell = tuple(nav.to_cell(route[0]))
+    labels, _ = ndimage.label(nav_passable, structure=np.ones((3, 3), bool))
+    if nav_passable[start_cell]:
+        reachable = labels == labels[start_cell]
+    else:
+        reachable = labels == int(np.argmax(np.bincount(labels.ravel())[1:])) + 1 if labels.max() else nav_passable
     trial_rng = np.random.default_rng(rng.integers(2**32))
+    where = " (with world.changes in place)" if nav is not world else ""
     if isinstance(spec.trials, TrialsGenerate):
         gen = spec.trials.generate
         # generated ends are joined to the route through space the robot fits in with a margin
         # (no trial behind a gap it could only scrape through)
-        fit_labels, _ = ndimage.label(space.fit, structure=np.ones((3, 3), bool))
-        fit_reachable = fit_labels == fit_labels[tuple(start_cell)] if space.fit[tuple(start_cell)] else reachable
+        fit_labels, _ = ndimage.label(nav_space.fit, structure=np.ones((3, 3), bool))
+        fit_reachable = fit_labels == fit_labels[start_cell] if nav_space.fit[start_cell] else reachable
         try:
             scenario.trials = generate_trials(
-                world, reachable, gen.count, gen.min_distance, trial_rng, gen.max_distance, within=fit_reachable
+                nav, reachable, gen.count, gen.min_distance, trial_rng, gen.max_distance, within=fit_reachable
             )
         except ValueError as exc:
-            raise ScenarioError(path, "trials.generate", str(exc)) from None
+            raise ScenarioError(path, "trials.generate", f"{exc}{where}") from None
     else:
         for i, t in enumerate(spec.trials):
-            _check_point(path, f"trials.{i}.start", t.start[:2], world, passable, radius)
-            _check_point(path, f"trials.{i}.goal", t.goal, world, passable, radius)
-            trial = make_trial(world, reachable, i, t.start, t.goal)
+            for end, xy in (("start", t.start[:2]), ("goal", t.goal)):
+                _check_point(path, f"trials.{i}.{end}", xy, world, passable, radius)
+                if nav is not world:
+                    _check_point(path, f"trials.{i}.{end}", xy, nav, nav_passable, radius, where)
+            trial = make_trial(nav, reachable, i, t.start, t.goal)
             if trial is None:
                 raise ScenarioError(
                     path,
                     f"trials.{i}",
-                    "start and goal are not connected to the mapping route through free space wide enough for the robot",
+                    "start and goal are not connected to the mapping route through free space wide enough for the robot" + where,
                 )
             scenario.trials.append(trial)
     return scenario

@@ -65,6 +65,9 @@ class WorldSpec(Strict):
     corridors: list[CorridorSpec] = []
     rooms: list[RoomSpec] = []
     obstacles: list[ObstacleSpec] = []
+    # extension of format 1: boxes that appear only in the navigation stage (a closed door, a
+    # cart left in a corridor); absent while mapping, obstacles during every trial
+    changes: list[ObstacleSpec] = []
     map: MapSpec | None = None
 
     @model_validator(mode="after")

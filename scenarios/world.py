@@ -48,6 +48,7 @@ class World:
     ceiling: bool
     obstacles: list[ObstacleSpec] = field(default_factory=list)
     geometry: Polygon | MultiPolygon | None = None  # exact free space of a shape world
+    changes: list[ObstacleSpec] = field(default_factory=list)  # navigation-time boxes (in ``obstacles`` once applied)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -304,4 +305,31 @@ def map_world(spec: WorldSpec, scenario_file: Path) -> World:
 
 
 def build_world(spec: WorldSpec, scenario_file: Path) -> World:
-    return map_world(spec, scenario_file) if spec.map is not None else shape_world(spec)
+    """The mapping stage's world (``spec.changes`` listed in ``changes``, not applied)."""
+    world = map_world(spec, scenario_file) if spec.map is not None else shape_world(spec)
+    world.changes = list(spec.changes)
+    return world
+
+
+def with_changes(world: World) -> World:
+    """The navigation stage's world: ``world`` with its ``changes`` standing in the free space.
+
+    The same object if there are no changes. Walls (``structure_free``, ``wall_segments``) are
+    the mapping world's: a change is an obstacle, as a closed door or a parked cart is.
+    """
+    if not world.changes:
+        return world
+    boxes = unary_union([rectangle(c.center, c.size, c.yaw) for c in world.changes])
+    blocked = rasterize(boxes, world.origin, world.resolution, world.free.shape)
+    return World(
+        resolution=world.resolution,
+        origin=world.origin.copy(),
+        free=world.free & ~blocked,
+        structure_free=world.structure_free,
+        wall_segments=world.wall_segments,
+        wall_height=world.wall_height,
+        ceiling=world.ceiling,
+        obstacles=[*world.obstacles, *world.changes],
+        geometry=world.geometry.difference(boxes) if world.geometry is not None else None,
+        changes=list(world.changes),
+    )

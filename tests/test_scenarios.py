@@ -59,6 +59,27 @@ def write(tmp_path: Path, spec: dict, name: str = "s.yaml") -> Path:
         (lambda s: s["world"].update(Obstacles=[]), "world.Obstacles", "unknown key"),
         (lambda s: s["world"].update(resolution=1e-5), "world", "too large"),
         (
+            lambda s: s["world"].update(changes=[{"center": [5, 0], "size": [1, 1], "height": -1}]),
+            "world.changes.0.height",
+            "greater than 0",
+        ),
+        (
+            lambda s: s["world"].update(changes=[{"center": [5, 0], "size": [1, 1], "height": 1}, {"center": [5, 0]}]),
+            "world.changes.1.size",
+            "missing",
+        ),
+        (
+            lambda s: s["world"].update(changes=[{"center": [5, 0], "size": [1, 1], "height": 1, "open": True}]),
+            "world.changes.0.open",
+            "unknown key",
+        ),
+        (lambda s: s["world"].update(changes={"center": [5, 0]}), "world.changes", "valid list"),
+        (
+            lambda s: s["world"].update(changes=[{"center": [1, 0], "size": [1, 3], "height": 1}]),
+            "trials.0.start",
+            "world.changes",
+        ),
+        (
             lambda s: s["world"]["corridors"].append({"points": [[30, 30], [50, 30]], "width": 2.0}),
             "world.corridors.1",
             "not connected",
