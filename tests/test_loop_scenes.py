@@ -251,3 +251,63 @@ def test_repeated_rooms_are_identical_side_by_side():
     assert any(kind == "rooms" for kind, *_ in first)  # its door
     for room in south[1:]:
         assert contents(room) == first
+
+
+# ---------------------------------------------------------------------------------------------
+# the bundled loop offices
+
+
+def windings(route: np.ndarray, centre: tuple[float, float], close_m: float = 1.5) -> set[int]:
+    """Signs of the whole turns the route makes round ``centre`` between two moments it is at the
+    same place (within ``close_m``): -1 clockwise, +1 counter-clockwise."""
+    from test_routes_real_maps import densify  # noqa: PLC0415 - a sibling test module
+
+    points = densify(route, 0.25)
+    angle = np.unwrap(np.arctan2(points[:, 1] - centre[1], points[:, 0] - centre[0]))
+    found: set[int] = set()
+    for i in range(0, len(points), 5):
+        near = np.linalg.norm(points[i + 1 :] - points[i], axis=1) < close_m
+        turns = (angle[i + 1 :] - angle[i]) / (2 * np.pi)
+        for sign in (-1, 1):
+            if np.any(near & (np.abs(turns - sign) < 0.1)):
+                found.add(sign)
+        if found == {-1, 1}:
+            break
+    return found
+
+
+def test_loop_office_route_goes_round_both_rings_both_ways():
+    scenario = load_scenario("loop_office")
+    spec = scenario.spec
+    assert spec.odometry.noise is None and len(scenario.trials) == 20
+    assert 300 <= scenario.route_length_m <= 1200
+    assert 100 <= scenario.summary()["corridor_length_m"] <= 200
+    assert min(t.shortest_m for t in scenario.trials) >= 30.0
+    ring, cross = spec.world.corridors
+    (xc, _), (_, height) = cross.points
+    width = ring.points[1][0]
+    for centre in ((xc / 2, height / 2), ((xc + width) / 2, height / 2)):
+        assert windings(scenario.route, centre) == {-1, 1}, centre
+
+
+def test_loop_office_door_closes_the_way_most_trials_would_take_and_leaves_one_round():
+    office, door = load_scenario("loop_office"), load_scenario("loop_office_door")
+    # the same building and route; one change, in the navigation stage only
+    assert door.spec.world.model_dump(exclude={"changes"}) == office.spec.world.model_dump(exclude={"changes"})
+    assert np.array_equal(door.route, office.route)
+    assert len(door.spec.world.changes) == 1 and door.navigation_world is not door.world
+    change = door.spec.world.changes[0]
+    shut = rectangle(change.center, change.size, change.yaw)
+    crossing = 0
+    for trial in door.trials:
+        mapped = make_trial(door.world, door.passable, trial.index, tuple(np.r_[trial.start[:2], 0.0]), tuple(trial.goal))
+        assert mapped is not None
+        through = LineString(mapped.shortest_path).intersects(shut)
+        crossing += through
+        # every trial keeps a way round, which the GT shortest path takes, never through the change
+        assert not LineString(trial.shortest_path).intersects(shut)
+        if through:
+            assert trial.shortest_m > mapped.shortest_m + 5.0
+        else:
+            assert trial.shortest_m == pytest.approx(mapped.shortest_m, rel=1e-6)
+    assert crossing >= 0.75 * len(door.trials)

@@ -11,7 +11,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scenarios import ScenarioError, load_scenario
+from scenarios import ScenarioError, bundled_names, load_scenario
 from scenarios.schema import WorldSpec, parse_spec
 from scenarios.world import build_world, read_ros_map
 
@@ -210,6 +210,10 @@ def test_auto_route_visits_every_dead_end():
         assert np.min(np.linalg.norm(scenario.route - end, axis=1)) < 2.3, end
 
 
-def test_bundled_scenarios_validate():
-    for name in ["tiny", "corridor_150m", "depot", "warehouse"]:
-        assert load_scenario(name).trials
+def test_the_bundled_scenarios_are_all_there():
+    assert {"tiny", "corridor_150m", "depot", "warehouse", "loop_office", "loop_office_door"} <= set(bundled_names())
+
+
+@pytest.mark.parametrize("name", bundled_names())
+def test_bundled_scenarios_validate(name):
+    assert load_scenario(name).trials
