@@ -10,6 +10,8 @@ generated here (``tools/make_office_map.py``): 58 x 47 m at 0.05 m per pixel, ro
 from __future__ import annotations
 
 import importlib.util
+import json
+import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -165,3 +167,18 @@ def test_the_office_map_has_what_a_robot_map_has_and_its_trials_are_reachable(of
         for xy in (trial.start[:2], trial.goal):
             assert world.clearance_at(xy) >= radius + SAMPLE_MARGIN_M - 0.01
             assert labels[tuple(world.to_cell(xy))] == route_piece
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", bundled_names())
+def test_the_mapping_stage_drives_every_bundled_route_to_its_end_with_the_oracle(name, tmp_path):
+    """The real mapping stage (scans, the runner's follower and stuck rule), end to end."""
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "runners.cli", "run", name, "--systems", "oracle", "--trials", "0", "--out", str(out)]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=3600, cwd=TOOLS.parent)
+    assert done.returncode == 0, (done.stdout + done.stderr)[-3000:]
+    report = json.loads((out / "mapping" / "oracle.json").read_text())
+    assert "error" not in report, report.get("error")
+    assert report["collisions"] == 0
+    # driven to its end: the follower cuts corners by centimetres, it does not skip the route
+    assert report["route_length_m"] >= 0.95 * report["route_plan_length_m"]
