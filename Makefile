@@ -4,9 +4,10 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 BENCH := $(VENV)/bin/navtopo-bench
 STAMP := $(VENV)/.installed
-# the default benchmark: the paper's scene with the systems that navigate today
+# the default benchmark: the paper's scene, the three systems, trials on both cores
 BENCH_SCENARIO ?= corridor_150m
-BENCH_SYSTEMS ?= metric_grid,oracle
+BENCH_SYSTEMS ?= navtopo,metric_grid,oracle
+BENCH_WORKERS ?= 2
 BENCH_OUT ?= results/$(BENCH_SCENARIO)/bench
 
 .PHONY: setup bench test test-slow lint clean
@@ -24,7 +25,7 @@ $(STAMP): pyproject.toml
 
 bench: setup
 	rm -rf $(BENCH_OUT)
-	$(BENCH) run $(BENCH_SCENARIO) --systems $(BENCH_SYSTEMS) --out $(BENCH_OUT)
+	$(BENCH) run $(BENCH_SCENARIO) --systems $(BENCH_SYSTEMS) --workers $(BENCH_WORKERS) --out $(BENCH_OUT)
 	$(BENCH) report $(BENCH_OUT)
 	cat $(BENCH_OUT)/report/table.md
 

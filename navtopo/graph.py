@@ -40,6 +40,7 @@ class Vertex:
     grid: CroppedGrid
     pose_hint: NDArray[np.float64]  # (3,) odometry pose at creation, odometry frame
     stamp: float
+    odometer: float | None = None  # metres of odometry travelled before it was made (None: not recorded)
 
 
 class TopologicalGraph:
@@ -60,7 +61,9 @@ class TopologicalGraph:
     def descriptors(self) -> NDArray[np.float32]:
         return self._descriptors[: len(self.vertices)]
 
-    def add_vertex(self, grid: CroppedGrid, descriptor: ArrayLike, pose_hint: ArrayLike, stamp: float) -> int:
+    def add_vertex(
+        self, grid: CroppedGrid, descriptor: ArrayLike, pose_hint: ArrayLike, stamp: float, odometer: float | None = None
+    ) -> int:
         descriptor = np.asarray(descriptor, dtype=np.float32).reshape(-1)
         if descriptor.shape != (self.descriptor_dim,):
             raise ValueError(f"descriptor of shape {descriptor.shape}, expected ({self.descriptor_dim},)")
@@ -70,7 +73,11 @@ class TopologicalGraph:
             grown[:index] = self._descriptors[:index]
             self._descriptors = grown
         self._descriptors[index] = descriptor
-        self.vertices.append(Vertex(grid, np.asarray(pose_hint, dtype=np.float64).copy(), float(stamp)))
+        self.vertices.append(
+            Vertex(
+                grid, np.asarray(pose_hint, dtype=np.float64).copy(), float(stamp), None if odometer is None else float(odometer)
+            )
+        )
         self._adjacency.append({})
         return index
 
@@ -157,10 +164,11 @@ class TopologicalGraph:
 
     @property
     def nbytes(self) -> int:
-        """Exact bytes of the map's data: grids, descriptors, pose hints, stamps, edges."""
+        """Exact bytes of the map's data: grids, descriptors, pose hints, stamps, odometers, edges."""
         n = len(self.vertices)
         grids = sum(v.grid.nbytes for v in self.vertices)
-        return int(grids + self.descriptors.nbytes + n * 3 * 8 + n * 8 + 2 * self.edge_count * EDGE_BYTES)
+        odometers = 8 * sum(1 for v in self.vertices if v.odometer is not None)
+        return int(grids + self.descriptors.nbytes + n * 3 * 8 + n * 8 + odometers + 2 * self.edge_count * EDGE_BYTES)
 
     # -- files -----------------------------------------------------------------------------------
 
@@ -181,6 +189,7 @@ class TopologicalGraph:
                     "id": i,
                     "stamp": v.stamp,
                     "pose_hint": [float(x) for x in v.pose_hint],
+                    **({"odometer": v.odometer} if v.odometer is not None else {}),
                     "grid": {
                         "file": f"grids/{i:06d}.png",
                         "row0": v.grid.row0,
@@ -244,7 +253,14 @@ class TopologicalGraph:
                     if cells.shape != shape:
                         raise GraphFormatError(f"{png}: grid of shape {cells.shape}, expected {shape} from {index}")
                 grid = CroppedGrid(cells, int(grid_entry["row0"]), int(grid_entry["col0"]), int(grid_entry["size"]))
-                graph.add_vertex(grid, descriptors[i], np.asarray(entry["pose_hint"], float), float(entry["stamp"]))
+                odometer = entry.get("odometer")
+                graph.add_vertex(
+                    grid,
+                    descriptors[i],
+                    np.asarray(entry["pose_hint"], float),
+                    float(entry["stamp"]),
+                    None if odometer is None else float(odometer),
+                )
             except GraphFormatError:
                 raise
             except (KeyError, TypeError, ValueError) as exc:

@@ -299,7 +299,7 @@ class GraphMaintainer:
         self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()
 
     def _add_vertex(self, grid, points, odom, stamp: float, edge_from_current: bool) -> None:
-        vertex = self.graph.add_vertex(CroppedGrid.from_grid(grid), self.describe(points), odom, stamp)
+        vertex = self.graph.add_vertex(CroppedGrid.from_grid(grid), self.describe(points), odom, stamp, self._odometer)
         self._odometer_at_vertex[vertex] = self._odometer
         self.counters.new_vertices += 1
         if edge_from_current and self.current is not None:

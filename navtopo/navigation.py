@@ -38,10 +38,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from navtopo.follower import PathFollower
 from navtopo.geometry import between, compose, distance_to_polyline, inverse, transform_points
 from navtopo.graph import TopologicalGraph
+from navtopo.graph_poses import relaxed_poses
 from navtopo.grid_planning import GridFrame, plan_path
 from navtopo.grid_search import inflate_free
 from navtopo.local_grid import FREE, GridConfig, grid_from_points, obstacle_points, xy_to_cell
 from navtopo.mapping import GraphMaintainer
+from navtopo.obstacles import ObstacleMemory
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
 from navtopo.scan_matching import prepare
 from navtopo.types import Command, NavStatus, Observation, Status
@@ -113,13 +115,18 @@ class Localization:
         }
 
 
-def goal_in_graph(graph: TopologicalGraph, goal_xy: NDArray, grid_config: GridConfig) -> tuple[int, NDArray[np.float64]]:
+def goal_in_graph(
+    graph: TopologicalGraph, goal_xy: NDArray, grid_config: GridConfig, poses: NDArray | None = None
+) -> tuple[int, NDArray[np.float64]]:
     """A map-frame goal (2,) as ``(v_goal, T_goal)``: among the vertices whose known free area holds
-    the goal (by their odometry hints), the nearest by hint; if none holds it, the nearest."""
+    the goal, the nearest; if none holds it, the nearest. ``poses`` (V, 3): the vertices' poses in
+    the map frame (``navtopo.graph_poses.relaxed_poses``; default: their odometry hints)."""
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
+    if poses is None:
+        poses = np.array([vertex.pose_hint for vertex in graph.vertices])
     best, best_free = None, None
     for v, vertex in enumerate(graph.vertices):
-        local = transform_points(inverse(vertex.pose_hint), goal_xy[None])[0]
+        local = transform_points(inverse(poses[v]), goal_xy[None])[0]
         distance = float(np.hypot(local[0], local[1]))
         row, col = xy_to_cell(local[None], grid_config)[0] - (vertex.grid.row0, vertex.grid.col0)
         cells = vertex.grid.cells
@@ -247,6 +254,7 @@ class Navigator:
     config: NavigationConfig
     robot_radius: float
     status: NavStatus = field(default_factory=NavStatus)
+    map_poses: NDArray[np.float64] | None = None  # (V, 3) vertices in the map frame, for map-frame goals
     goal: Goal | None = None
     localized: bool = False
     planning_ms: list[float] = field(default_factory=list)
@@ -257,7 +265,7 @@ class Navigator:
     _path_vertex: int | None = None
     _plan_stamp: float = -np.inf
     _target_is_goal: bool = False
-    _obstacles: list[tuple[float, NDArray[np.float64]]] = field(default_factory=list)  # (stamp, points)
+    obstacles: ObstacleMemory = field(default_factory=ObstacleMemory)  # returns the map lacks, until seen through
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
     _progress: tuple[float, NDArray[np.float64]] | None = None
     _stuck_once: bool = False
@@ -281,7 +289,7 @@ class Navigator:
         self._route = None
         self._path_vertex = None
         self._plan_stamp = -np.inf
-        self._obstacles = []
+        self.obstacles.clear()
         self._obstacle_vertex = None
         self._progress = None
         self._stuck_once = False
@@ -291,8 +299,11 @@ class Navigator:
     # -- the goal server ----------------------------------------------------------------------------
 
     def set_goal(self, goal_xy: NDArray) -> None:
-        """A map-frame goal, turned into the paper's form with the vertices' odometry hints."""
-        vertex, pose = goal_in_graph(self.graph, goal_xy, self.maintainer.grid_config)
+        """A map-frame goal, turned into the paper's form with the vertices' map-frame poses (their
+        odometry hints, relaxed against the scan-matched edges: ``navtopo.graph_poses``)."""
+        if self.map_poses is None or len(self.map_poses) != len(self.graph):
+            self.map_poses = relaxed_poses(self.graph)
+        vertex, pose = goal_in_graph(self.graph, goal_xy, self.maintainer.grid_config, self.map_poses)
         self.set_goal_in_graph(vertex, pose)
 
     def set_goal_in_graph(self, vertex: int, pose: NDArray) -> None:
@@ -495,25 +506,20 @@ class Navigator:
     # -- new obstacles and progress ---------------------------------------------------------------------
 
     def _remember_obstacles(self, obs: Observation, vertex: int, pose: NDArray) -> None:
-        memory = self.local.config.obstacle_memory
-        self._obstacles = [(stamp, pts) for stamp, pts in self._obstacles if obs.stamp - stamp <= memory]
-        if self._obstacles and self._obstacle_vertex != vertex:
+        """Mark the scan's returns no mapped wall explains, clear those it sees through (in v_cur's frame)."""
+        if self._obstacle_vertex is not None and self._obstacle_vertex != vertex and len(self.obstacles):
             # into the new location's frame, through the edge between them (or forget them)
-            if self._obstacle_vertex is not None and self.graph.has_edge(self._obstacle_vertex, vertex):
-                to_new = inverse(self.graph.edge(self._obstacle_vertex, vertex))
-                self._obstacles = [(stamp, transform_points(to_new, pts)) for stamp, pts in self._obstacles]
+            if self.graph.has_edge(self._obstacle_vertex, vertex):
+                self.obstacles.transform(self.graph.edge(self._obstacle_vertex, vertex))
             else:
-                self._obstacles = []
+                self.obstacles.clear()
         self._obstacle_vertex = vertex
         points = obstacle_points(obs.points, self.maintainer.grid_config)
         new = self.local.new_obstacles(self.unions.get(vertex), pose, points)
-        if len(new):
-            self._obstacles.append((obs.stamp, new))
+        self.obstacles.update(pose, points, new, self.local.config.new_obstacle_range)
 
     def _recent_obstacles(self) -> NDArray[np.float64]:
-        if not self._obstacles:
-            return np.zeros((0, 2))
-        return np.concatenate([pts for _, pts in self._obstacles])
+        return self.obstacles.points
 
     def _stuck(self, obs: Observation, pose: NDArray) -> bool:
         """No progress for ``stuck_time``: remove the edge being followed and replan; twice: fail."""

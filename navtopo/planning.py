@@ -60,7 +60,6 @@ class PlanningConfig(BaseModel):
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between local replans in one location")
     new_obstacle_distance: float = Field(0.25, gt=0, description="a return this far from every mapped wall is a new obstacle")
     new_obstacle_range: float = Field(6.0, gt=0, description="only nearer returns can be new obstacles")
-    obstacle_memory: float = Field(10.0, ge=0, description="s a newly seen obstacle stays blocked")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict
 
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.graph import TopologicalGraph
+from navtopo.graph_poses import relaxed_poses
 from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
@@ -132,7 +133,9 @@ class NavTopo:
             raise ValueError(
                 f"{directory}: the graph was built with descriptor {saved.get('descriptor')!r}, not {config.descriptor!r}"
             )
-        return cls(config, graph, mapping=False, context=context)
+        system = cls(config, graph, mapping=False, context=context)
+        system.navigator.map_poses = relaxed_poses(graph)  # for map-frame goals: part of loading
+        return system
 
     def mapping_stats(self) -> dict[str, Any]:
         counters = self.maintainer.counters
@@ -188,9 +191,17 @@ class NavTopo:
         return MemoryBreakdown(
             map=self.graph.nbytes - descriptors,
             localization=descriptors + self.maintainer.grids.nbytes,
-            derived=self.unions.nbytes + self.navigator.global_planner.nbytes,
+            derived=self.unions.nbytes
+            + self.navigator.global_planner.nbytes
+            + self._map_poses_nbytes
+            + self.navigator.obstacles.nbytes,
             model=int(self.descriptor.nbytes),
         )
+
+    @property
+    def _map_poses_nbytes(self) -> int:
+        poses = self.navigator.map_poses
+        return int(poses.nbytes) if poses is not None else 0
 
     @staticmethod
     def disk_usage(directory: Path) -> dict[str, int]:

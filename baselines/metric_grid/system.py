@@ -16,7 +16,8 @@ navigation   as a Nav2 user runs it: the map is loaded and an initial pose given
              scan-to-map registration at every scan (``localization.ScanToMap``); Theta*
              (``navtopo.grid_search``, the compiled kernel NavTopo's local planner uses) on the
              map's free cells eroded by the robot radius plus a margin, unknown cells blocked;
-             replanning at a fixed rate and when newly seen obstacles block the path; the shared
+             replanning at a fixed rate and when newly seen obstacles block the path (they stay
+             blocked until the lidar sees through them, ``navtopo.obstacles``); the shared
              ``PathFollower`` drives and stops at the protocol's stop tolerance.
 
 Memory (``memory()``, the runner's breakdown): ``map`` is the trinary grid as loaded,
@@ -29,7 +30,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,7 @@ from navtopo import grid_search
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.grid_planning import GridFrame, plan_path
 from navtopo.local_grid import FREE, OCCUPIED, GridConfig, obstacle_points
+from navtopo.obstacles import ObstacleMemory
 from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 
 from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMapConfig
@@ -90,7 +91,6 @@ class PlanningConfig(BaseModel):
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block")
     new_obstacle_distance: float = Field(0.25, gt=0, description="m from every mapped wall: an obstacle the map lacks")
     new_obstacle_range: float = Field(6.0, gt=0, description="m; only nearer returns can be new obstacles")
-    obstacle_memory: float = Field(10.0, ge=0, description="s a newly seen obstacle stays in the planning grid")
 
 
 #: Overrides for noisy wheel odometry (the issue's ``noisy`` setting, 2 %, 0.5°/m): kiss-icp seeded by
@@ -213,7 +213,7 @@ class MetricGrid:
         self._map_from_odom: NDArray[np.float64] | None = None
         self._goal: NDArray[np.float64] | None = None
         self._last_plan_stamp = -np.inf
-        self._new_obstacles: deque[tuple[float, NDArray]] = deque()  # (stamp, (M, 2) map points)
+        self.obstacles = ObstacleMemory()  # returns the map lacks, map frame, until seen through
         self._latest_new_obstacles = np.zeros((0, 2))
 
     @staticmethod
@@ -391,7 +391,7 @@ class MetricGrid:
         self.planning_ms = []
         self.follower.clear()
         self._last_plan_stamp = -np.inf
-        self._new_obstacles.clear()
+        self.obstacles.clear()
         self._latest_new_obstacles = np.zeros((0, 2))
         self.counters = dict.fromkeys(self.counters, 0)
 
@@ -414,7 +414,7 @@ class MetricGrid:
         self.planning_ms = []
         self.follower.clear()
         self._last_plan_stamp = -np.inf
-        self._new_obstacles.clear()
+        self.obstacles.clear()
 
     def step(self, obs: Observation) -> Command:
         if self._goal is None:
@@ -429,7 +429,7 @@ class MetricGrid:
                 self.status = NavStatus(Status.FAILED, "not_localized")
                 return Command()
             return Command(0.0, relocalization.turn_rate)
-        self._remember_new_obstacles(obs.stamp, pose, points)
+        self._remember_new_obstacles(pose, points)
         due = not self.follower.has_path or obs.stamp - self._last_plan_stamp >= self.config.planning.replan_period
         blocked = not due and self._path_blocked(pose)
         if due or blocked:
@@ -506,25 +506,21 @@ class MetricGrid:
             return None
         return found[0]
 
-    def _remember_new_obstacles(self, stamp: float, pose: NDArray, points: NDArray) -> None:
-        """Keep the returns that the map does not explain (far from every mapped wall)."""
+    def _remember_new_obstacles(self, pose: NDArray, points: NDArray) -> None:
+        """Mark the returns that the map does not explain (far from every mapped wall); clear the
+        marked ones this scan sees through (``navtopo.obstacles.ObstacleMemory``)."""
         cfg = self.config.planning
-        while self._new_obstacles and stamp - self._new_obstacles[0][0] > cfg.obstacle_memory:
-            self._new_obstacles.popleft()
         self._latest_new_obstacles = np.zeros((0, 2))
-        near = points[np.hypot(points[:, 0], points[:, 1]) <= cfg.new_obstacle_range]
-        if not len(near) or self.localizer is None:
+        if self.localizer is None:
             return
-        world = se2.transform_points(pose, near.astype(np.float64))
-        unexplained = world[self.localizer.sample(world)[0] > cfg.new_obstacle_distance]
-        self._latest_new_obstacles = unexplained
-        if len(unexplained):
-            self._new_obstacles.append((stamp, unexplained))
+        near = points[np.hypot(points[:, 0], points[:, 1]) <= cfg.new_obstacle_range]
+        if len(near):
+            world = se2.transform_points(pose, near.astype(np.float64))
+            self._latest_new_obstacles = world[self.localizer.sample(world)[0] > cfg.new_obstacle_distance]
+        self.obstacles.update(pose, points, self._latest_new_obstacles, cfg.new_obstacle_range)
 
     def _recent_obstacles(self) -> NDArray[np.float64]:
-        if not self._new_obstacles:
-            return np.zeros((0, 2))
-        return np.concatenate([points for _, points in self._new_obstacles])
+        return self.obstacles.points
 
     def _path_blocked(self, pose: NDArray) -> bool:
         """Do newly seen obstacles of the latest scan come within the robot radius of the path ahead?"""
@@ -591,7 +587,7 @@ class MetricGrid:
         localization = (self.localizer.nbytes if self.localizer is not None else 0) + (
             self.relocalizer.nbytes if self.relocalizer is not None else 0
         )
-        derived = sum(int(mask.nbytes) for mask in getattr(self, "_eroded", {}).values())
+        derived = sum(int(mask.nbytes) for mask in getattr(self, "_eroded", {}).values()) + self.obstacles.nbytes
         return MemoryBreakdown(map=int(self.grid_map.nbytes), localization=localization, derived=derived)
 
     @staticmethod

@@ -1,0 +1,68 @@
+"""Where NavTopo's locations lie in the map frame, against the truth: the odometry hints, and the
+relaxation of the graph (``navtopo.graph_poses``) that map-frame goals are converted with.
+
+The runner records the true pose where each location was made (``mapping/navtopo.json``,
+``anchors``, scenario frame); the map frame is the mapping run's first pose. A benchmark may read
+ground truth; the system never does.
+
+    .venv/bin/python benchmarks/bench_navtopo_graph_poses.py RUN_DIR [RUN_DIR ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from navtopo import geometry as se2
+from navtopo.graph import TopologicalGraph
+from navtopo.graph_poses import relaxed_poses
+
+
+def errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    translation = np.hypot(*(estimate[:, :2] - truth[:, :2]).T)
+    rotation = np.degrees(np.abs(se2.wrap_angle(estimate[:, 2] - truth[:, 2])))
+    return {
+        "translation_m_median": round(float(np.median(translation)), 4),
+        "translation_m_p95": round(float(np.percentile(translation, 95)), 4),
+        "translation_m_max": round(float(translation.max()), 4),
+        "rotation_deg_max": round(float(rotation.max()), 3),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run_dirs", type=Path, nargs="+")
+    args = parser.parse_args()
+    for run in args.run_dirs:
+        manifest = json.loads((run / "manifest.json").read_text())
+        mapping = json.loads((run / "mapping" / "navtopo.json").read_text())
+        graph, _ = TopologicalGraph.load(run / "maps" / "navtopo")
+        anchors = {round(row[0], 6): np.array(row[1:4]) for row in mapping["anchors"]}
+        origin = np.array(anchors[round(graph.vertices[0].stamp, 6)])
+        truth = np.array([se2.between(origin, anchors[round(v.stamp, 6)]) for v in graph.vertices])
+        hints = np.array([v.pose_hint for v in graph.vertices])
+        t0 = time.perf_counter()
+        relaxed = relaxed_poses(graph)
+        elapsed = (time.perf_counter() - t0) * 1e3
+        print(
+            json.dumps(
+                {
+                    "run": str(run),
+                    "setting": manifest.get("setting"),
+                    "vertices": len(graph),
+                    "edges": graph.edge_count,
+                    "hints": errors(hints, truth),
+                    "relaxed": errors(relaxed, truth),
+                    "relaxation_ms": round(elapsed, 2),
+                },
+                indent=2,
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,139 @@
+"""Where the locations lie in the map frame: a pose-graph relaxation of the graph of locations,
+used only to turn a map-frame goal into the paper's ``(v_goal, T_goal)``.
+
+A location's odometry hint is the odometry pose where it was made: exact with precise odometry,
+but with noisy odometry it drifts without bound (a heading random walk of 0.5°/m is ~16° after a
+kilometre). The edges' relative poses come from scan matching and do not drift. This module finds
+the vertex poses that best agree with both (Gauss-Newton on SE(2), as in Grisetti et al., "A
+Tutorial on Graph-Based SLAM", 2010): every edge with its matching's accuracy, and the hints'
+relative poses between locations made one after the other, with a noise that grows with the
+odometry travelled in between — estimated from the data, as the spread of the hints' disagreement
+with the scan-matched edges, so no setting has to be named. The first location, made at the
+mapping run's first pose, anchors the map frame. Navigation itself never uses these poses: it
+lives in the locations' own frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sparse
+from numpy.typing import NDArray
+from scipy.sparse.linalg import spsolve
+
+from navtopo.geometry import between, wrap_angle
+from navtopo.graph import TopologicalGraph
+
+EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm median)
+EDGE_SIGMA_YAW = np.radians(0.5)
+HINT_FLOOR_XY = 0.001  # m: no relative hint is trusted more than this ...
+HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
+ANCHOR_SIGMA = 1e-6
+
+
+def _residuals(poses: NDArray, u: NDArray, v: NDArray, measured: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """For every constraint k: e_k = between(measured_k, between(x_u, x_v)) (K, 3) and its Jacobians
+    with respect to x_u and x_v (K, 3, 3)."""
+    xu, xv = poses[u], poses[v]
+    cu, su = np.cos(xu[:, 2]), np.sin(xu[:, 2])
+    cm, sm = np.cos(measured[:, 2]), np.sin(measured[:, 2])
+    dx, dy = xv[:, 0] - xu[:, 0], xv[:, 1] - xu[:, 1]
+    # relative pose of v in u, then its difference with the measurement (in the measurement's frame)
+    rx, ry = cu * dx + su * dy, -su * dx + cu * dy
+    ex, ey = rx - measured[:, 0], ry - measured[:, 1]
+    residual = np.stack([cm * ex + sm * ey, -sm * ex + cm * ey, wrap_angle(xv[:, 2] - xu[:, 2] - measured[:, 2])], axis=1)
+    rm_t = np.stack([np.stack([cm, sm], -1), np.stack([-sm, cm], -1)], axis=1)  # (K, 2, 2)
+    ru_t = np.stack([np.stack([cu, su], -1), np.stack([-su, cu], -1)], axis=1)
+    k = len(u)
+    a = np.zeros((k, 3, 3))
+    b = np.zeros((k, 3, 3))
+    rr = rm_t @ ru_t
+    a[:, :2, :2] = -rr
+    a[:, :2, 2] = (rm_t @ np.stack([-su * dx + cu * dy, -cu * dx - su * dy], axis=1)[:, :, None])[:, :, 0]
+    a[:, 2, 2] = -1.0
+    b[:, :2, :2] = rr
+    b[:, 2, 2] = 1.0
+    return residual, a, b
+
+
+def _hint_noise(graph: TopologicalGraph, travel: NDArray) -> tuple[float, float]:
+    """Per-√metre noise of the hints, from how far they disagree with the scan-matched edges between
+    locations made one after the other, less what the edges' own error explains."""
+    xy, yaw, metres = [], [], []
+    for u, v, pose_uv in graph.edges():
+        if abs(u - v) != 1:
+            continue
+        hinted = between(graph.vertices[u].pose_hint, graph.vertices[v].pose_hint)
+        error = between(pose_uv, hinted)
+        xy.append(float(np.hypot(error[0], error[1])) ** 2)
+        yaw.append(float(wrap_angle(error[2])) ** 2)
+        metres.append(max(abs(float(travel[v] - travel[u])), 0.5))
+    if not xy:
+        return 0.02, np.radians(0.5)  # nothing to learn from: assume a poor wheel odometry
+    per_metre = float(np.median(metres))
+    k_xy = np.sqrt(max(float(np.median(xy)) - 2 * EDGE_SIGMA_XY**2, 0.0) / per_metre)
+    k_yaw = np.sqrt(max(float(np.median(yaw)) - EDGE_SIGMA_YAW**2, 0.0) / per_metre)
+    return float(k_xy), float(k_yaw)
+
+
+def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.float64]:
+    """(V, 3) vertex poses in the map frame (the first vertex's), from edges and hints (see above)."""
+    n = len(graph)
+    if n == 0:
+        return np.zeros((0, 3))
+    hints = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64)
+    travel = np.array([v.odometer if v.odometer is not None else np.nan for v in graph.vertices])
+    if np.isnan(travel).any():  # an older graph: the hints' spacing stands in for the odometry travelled
+        travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(hints[:, :2], axis=0).T))])
+    k_xy, k_yaw = _hint_noise(graph, travel)
+    edges = graph.edges()
+    chain = np.arange(1, n)
+    root = np.sqrt(np.maximum(np.abs(travel[chain] - travel[chain - 1]), 0.1))
+    u = np.concatenate([[e[0] for e in edges], chain - 1]).astype(np.int64)
+    v = np.concatenate([[e[1] for e in edges], chain]).astype(np.int64)
+    measured = np.vstack([np.array([e[2] for e in edges]).reshape(-1, 3), [between(hints[i - 1], hints[i]) for i in chain]])
+    sigma = np.vstack(
+        [
+            np.tile([EDGE_SIGMA_XY, EDGE_SIGMA_XY, EDGE_SIGMA_YAW], (len(edges), 1)),
+            np.stack(
+                [
+                    np.maximum(HINT_FLOOR_XY, k_xy * root),
+                    np.maximum(HINT_FLOOR_XY, k_xy * root),
+                    np.maximum(HINT_FLOOR_YAW, k_yaw * root),
+                ],
+                axis=1,
+            ).reshape(-1, 3),
+        ]
+    )
+    w2 = 1.0 / sigma**2
+    # block positions of H_uu, H_vv, H_uv, H_vu for every constraint (3 x 3 each)
+    offsets = np.arange(3)
+    rows = np.stack([3 * u, 3 * v, 3 * u, 3 * v], axis=1)[:, :, None, None] + offsets[None, None, :, None]
+    cols = np.stack([3 * u, 3 * v, 3 * v, 3 * u], axis=1)[:, :, None, None] + offsets[None, None, None, :]
+    rows, cols = np.broadcast_arrays(rows, cols)
+    anchor = np.arange(3)
+    poses = hints.copy()
+    for _ in range(iterations):
+        residual, a, b = _residuals(poses, u, v, measured)
+        wa, wb = a * w2[:, :, None], b * w2[:, :, None]
+        at_wa = np.einsum("kij,kil->kjl", a, wa)
+        bt_wb = np.einsum("kij,kil->kjl", b, wb)
+        at_wb = np.einsum("kij,kil->kjl", a, wb)
+        blocks = np.stack([at_wa, bt_wb, at_wb, at_wb.transpose(0, 2, 1)], axis=1)
+        gradient = np.zeros(3 * n)
+        np.add.at(gradient, (3 * u[:, None] + offsets).ravel(), np.einsum("kij,ki->kj", a, w2 * residual).ravel())
+        np.add.at(gradient, (3 * v[:, None] + offsets).ravel(), np.einsum("kij,ki->kj", b, w2 * residual).ravel())
+        # the first vertex anchors the map frame
+        gradient[:3] += (poses[0] - hints[0]) / ANCHOR_SIGMA**2
+        hessian = sparse.csr_matrix(
+            (
+                np.concatenate([blocks.ravel(), np.full(3, 1.0 / ANCHOR_SIGMA**2)]),
+                (np.concatenate([rows.ravel(), anchor]), np.concatenate([cols.ravel(), anchor])),
+            ),
+            shape=(3 * n, 3 * n),
+        )
+        step = spsolve(hessian.tocsc(), -gradient).reshape(n, 3)
+        poses += step
+        poses[:, 2] = wrap_angle(poses[:, 2])
+        if np.abs(step).max() < 1e-7:
+            break
+    return poses
