@@ -1,4 +1,5 @@
-"""A resolved scenario: the validated file, its ground-truth world, mapping route and trials."""
+"""A resolved scenario: the validated file, its ground-truth worlds (mapping stage, and navigation
+stage with ``world.changes`` in place), mapping route and trials."""
 
 from __future__ import annotations
 

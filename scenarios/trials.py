@@ -1,7 +1,10 @@
 """Start-goal navigation trials: given in the file, or sampled from the scenario's seed.
 
 Each trial carries its reference: the any-angle ground-truth shortest path from start to goal
-in free space eroded by the robot radius (``shortest_m``, the numerator of efficiency).
+in free space eroded by the robot radius (``shortest_m``, the numerator of efficiency), in the
+navigation stage's world (``Scenario.navigation_world``: with ``world.changes`` in place).
+Generated ends keep ``SAMPLE_MARGIN_M`` more than the radius from walls and, in a scenario,
+are joined to the mapping route through space the robot fits in with the route's pass margin.
 """
 
 from __future__ import annotations
