@@ -27,6 +27,7 @@ class LocalizationConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     top_k: int = Field(5, ge=1, description="place-recognition candidates verified by scan matching (the paper: 5)")
+    near_k: int = Field(3, ge=0, description="with an odometry hint, the vertices nearest by hint verified too")
     drift_base: float = Field(3.0, ge=0, description="hint gate: candidates farther than this (m) ...")
     drift_per_metre: float = Field(
         0.05, ge=0, description="... plus this share of the odometry travelled between them are skipped"
@@ -121,12 +122,21 @@ class Localizer:
 
         robot_hint: the robot's pose in the odometry frame of the vertices' hints, if that frame
         is still the current one; then each candidate's hint gives a guess for the matcher and
-        candidates farther than ``hint_gate[v]`` (m) from the hint are skipped. top_k: how many
-        descriptor neighbours to verify (default: the config's).
+        candidates farther than ``hint_gate[v]`` (m) from the hint are skipped, and the
+        ``near_k`` vertices nearest by hint within their gates are verified too (odometry finds a
+        place that place recognition ranks low). top_k: how many descriptor neighbours to verify
+        (default: the config's).
         """
         ids, _ = self.graph.nearest(descriptor, top_k or self.config.top_k)
+        candidates = [int(v) for v in ids]
+        if robot_hint is not None and self.config.near_k > 0 and len(self.graph):
+            hints = np.array([v.pose_hint[:2] for v in self.graph.vertices])
+            distance = np.hypot(*(hints - robot_hint[:2]).T)
+            gates = np.array([(hint_gate or {}).get(v, np.inf) for v in range(len(hints))])
+            near = [int(v) for v in np.argsort(distance) if distance[v] <= gates[v]][: self.config.near_k]
+            candidates += [v for v in near if v not in candidates]
         found: list[Localized] = []
-        for vertex in (int(v) for v in ids):
+        for vertex in candidates:
             if exclude and vertex in exclude:
                 continue
             guess, gate = None, None

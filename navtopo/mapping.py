@@ -8,7 +8,8 @@ it, ``pose_in_current``, integrated from odometry. Then, in the paper's order:
    robot is within ``max_edge_length`` of the location's centre) → keep it; scan matching
    against the location corrects ``pose_in_current`` when it agrees with odometry;
 2. else move along an edge: the neighbours nearer than the current centre, each verified by scan
-   matching seeded with the pose the edge predicts;
+   matching seeded with the pose the edge predicts; while mapping, the same scan matched against
+   both ends measures the edge again, and the edge keeps the mean of its measurements;
 3. else a verified localization result (top-k descriptors, scan matching seeded by the
    vertices' odometry hints and gated by the drift odometry can explain); an edge to it is added
    if it passes the checks below — a loop closure when the graph's way round is much longer;
@@ -30,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.geometry import between, compose, inverse
+from navtopo.geometry import between, compose, inverse, wrap_angle
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import UNKNOWN, CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
 from navtopo.localization import LocalizationConfig, Localizer, VertexGrids
@@ -49,6 +50,9 @@ class MappingConfig(BaseModel):
     edge_tolerance: float = Field(1.0, gt=0, description="a new edge agrees with the graph's path within this (m) ...")
     edge_tolerance_per_metre: float = Field(0.05, ge=0, description="... plus this share of the path length")
     loop_ratio: float = Field(2.0, gt=1, description="a path longer than this times the edge closes a loop")
+    edge_measurements: int = Field(
+        20, ge=1, description="passes along an edge averaged into it at most (later ones weigh 1/this)"
+    )
 
 
 @dataclass
@@ -64,6 +68,7 @@ class MappingCounters:
     rejected_edges: int = 0
     matches: int = 0
     odometry_only: int = 0  # navigating: no location verified, the pose kept by odometry in the last one
+    edge_refinements: int = 0  # mapping: passes along an edge that measured it again
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -97,6 +102,7 @@ class GraphMaintainer:
         self._odom_at_update: NDArray[np.float64] | None = None
         self._odometer = 0.0  # metres of odometry travelled
         self._odometer_at_vertex: dict[int, float] = {}
+        self._edge_measurements: dict[tuple[int, int], int] = {}
 
     # -- odometry ----------------------------------------------------------------------------------
 
@@ -231,10 +237,35 @@ class GraphMaintainer:
             self.counters.matches += 1
             located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
             if located is not None:
+                if self.mapping:
+                    self._refine_edge(query, self.current, vertex, located.pose)
                 self._switch(vertex, located.pose)
                 self.last_verified = True
                 return True
         return False
+
+    def _refine_edge(self, query: PreparedGrid, u: int, v: int, pose_in_v: NDArray[np.float64]) -> None:
+        """Each pass along an edge while mapping measures it again: the scan matched against both
+        ends at once gives ``T_uv`` with no odometry in between; the edge keeps the running mean of
+        the measurements that agree with it (the first was made with the location)."""
+        at_u = self.localizer.verify(query, u, self.pose_in_current, self.config.max_correction)
+        self.counters.matches += 1
+        if at_u is None:
+            return
+        measured = compose(at_u.pose, inverse(pose_in_v))
+        edge = self.graph.edge(u, v)
+        step = between(edge, measured)
+        if float(np.hypot(step[0], step[1])) > self.config.edge_tolerance or abs(step[2]) > np.radians(5.0):
+            return
+        key = (min(u, v), max(u, v))
+        count = self._edge_measurements.get(key, 1)
+        weight = 1.0 / (count + 1)
+        refined = edge.copy()
+        refined[:2] += weight * (measured[:2] - edge[:2])
+        refined[2] = wrap_angle(edge[2] + weight * wrap_angle(measured[2] - edge[2]))
+        self.graph.add_edge(u, v, refined)
+        self._edge_measurements[key] = min(count + 1, self.config.edge_measurements)
+        self.counters.edge_refinements += 1
 
     def _localize(self, query: PreparedGrid, points: NDArray[np.float32], odom: NDArray[np.float64]) -> bool:
         if len(self.graph) == 0:

@@ -165,6 +165,14 @@ class NavTopo:
         """The paper's goal form: the goal's vertex and its position (2,) in that vertex's frame."""
         self.navigator.set_goal_in_graph(vertex, pose_in_vertex)
 
+    def set_goal_anchored(self, vertex_stamp: float, point_in_vertex: NDArray[np.float64]) -> None:
+        """The paper's goal form, the location named by its creation stamp (as the runner knows it)."""
+        stamps = np.array([v.stamp for v in self.graph.vertices])
+        vertex = int(np.argmin(np.abs(stamps - float(vertex_stamp))))
+        if abs(stamps[vertex] - float(vertex_stamp)) > 1e-6:
+            raise ValueError(f"no location was made at stamp {vertex_stamp}")
+        self.set_goal_in_graph(vertex, point_in_vertex)
+
     def step(self, obs: Observation) -> Command:
         t0 = time.perf_counter()
         command = self.navigator.step(obs)

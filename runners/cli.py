@@ -76,6 +76,13 @@ def run(
     stop_tolerance: Annotated[
         float, typer.Option(help="m: every system that stops by its own estimate stops this close to the goal", min=0.01)
     ] = 0.35,
+    goals: Annotated[
+        str,
+        typer.Option(
+            help="map: goals as map-frame points for every system; native: graph systems get the paper's "
+            "(location, pose in it) form (the same as map with precise odometry)"
+        ),
+    ] = "map",
     maps_from: Annotated[
         Path | None,
         typer.Option(help="reuse the maps of an earlier run (same scenario, seed, setting): navigation trials only"),
@@ -115,7 +122,11 @@ def run(
             raise ValueError
     except ValueError:
         fail(f"--initial-pose-error: expected two non-negative numbers XY_M,YAW_DEG, got {initial_pose_error!r}")
-    protocol = TrialProtocol(initial_pose_error_xy=error_xy, initial_pose_error_yaw_deg=error_yaw, stop_tolerance=stop_tolerance)
+    if goals not in ("map", "native"):
+        fail(f"--goals: {goals!r} is not map or native")
+    protocol = TrialProtocol(
+        initial_pose_error_xy=error_xy, initial_pose_error_yaw_deg=error_yaw, stop_tolerance=stop_tolerance, goals=goals
+    )
     seed_list: list[int | None] = [seed]
     if seeds:
         try:
@@ -145,6 +156,7 @@ def run(
                 ("--setting", setting is not None),
                 ("--initial-pose-error", initial_pose_error != "0.5,10"),
                 ("--stop-tolerance", stop_tolerance != 0.35),
+                ("--goals", goals != "map"),
             )
             if value
         ]

@@ -51,7 +51,7 @@ def context_for(
     truth = None
     if entry.privileged:
         world = scenario.world
-        if sim is not None and getattr(sim, "with_changes", False):
+        if sim is not None and sim.with_changes:
             world = scenario.navigation_world
         truth = GroundTruth(world=world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None)
     return SystemContext(

@@ -27,6 +27,7 @@ import psutil
 from numpy.typing import NDArray
 
 from navtopo import geometry as se2
+from navtopo import grid_search
 from runners.mapping import context_for, disk_report
 from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, judge, timeout_s, trajectory_length, trial_record
 from runners.protocol import TrialProtocol, apply_setting
@@ -71,6 +72,22 @@ class Anchors:
             return None
         anchor = self.poses.get(round(float(anchored[0]), 6))
         return None if anchor is None else se2.compose(anchor, np.asarray(anchored[1], dtype=np.float64))
+
+    def goal_form(self, goal: NDArray, world) -> tuple[float, NDArray[np.float64]]:
+        """The goal (2,) in the paper's form: the creation stamp of the location nearest to it with a
+        clear line of sight in the ground-truth free space (else the nearest), and the goal in that
+        location's frame."""
+        stamps = list(self.poses)
+        poses = np.array([self.poses[s] for s in stamps])
+        order = np.argsort(np.hypot(*(poses[:, :2] - goal).T))
+        chosen = int(order[0])
+        goal_cell = world.to_cell(goal)
+        for k in order[:20]:
+            cell = world.to_cell(poses[k, :2])
+            if world.inside(cell) and world.inside(goal_cell) and grid_search.line_of_sight(world.free, cell, goal_cell):
+                chosen = int(k)
+                break
+        return stamps[chosen], se2.transform_points(se2.inverse(poses[chosen]), np.asarray(goal, float)[None, :2])[0]
 
     def judge(self, stats: dict[str, Any], true_at: dict[float, NDArray], goal: NDArray, tolerance: float) -> dict[str, Any]:
         """The system's start-up localization and goal conversion against the truth (diagnostics)."""
@@ -127,7 +144,7 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
     protocol = TrialProtocol.from_json(job.protocol)
     entry = get_system(job.system)
     config = entry.config_model.model_validate(job.config)
-    sim = Simulator(scenario, seed=job.seed, **_navigation_stage(scenario))
+    sim = Simulator(scenario, seed=job.seed, with_changes=True)  # the navigation stage: world.changes stand
     run = RunDir(Path(job.run_dir)) if job.run_dir else None
     records: list[dict[str, Any]] = []
     memory: dict[str, Any] = {}
@@ -173,13 +190,6 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
     return {"system": job.system, "records": records, "memory": memory}
 
 
-def _navigation_stage(scenario: Scenario) -> dict[str, Any]:
-    """Simulator options of the navigation stage: obstacles that appear only now (``world.changes``)."""
-    import inspect
-
-    return {"with_changes": True} if "with_changes" in inspect.signature(Simulator).parameters else {}
-
-
 def run_one_trial(
     scenario: Scenario,
     sim: Simulator,
@@ -220,7 +230,10 @@ def run_one_trial(
             system.set_initial_pose(protocol.given_initial_pose(true_start, seed, index))
         goal_map = se2.transform_points(se2.inverse(world_from_map), trial.goal[None, :])[0]
         t0 = time.perf_counter()
-        system.set_goal(goal_map)
+        if protocol.goals == "native" and anchors is not None and hasattr(system, "set_goal_anchored"):
+            system.set_goal_anchored(*anchors.goal_form(trial.goal, scenario.navigation_world))
+        else:
+            system.set_goal(goal_map)
         compute_s += time.perf_counter() - t0
         last_progress_time, last_progress_pose = sim.time, sim.true_pose
         while True:

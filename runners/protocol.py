@@ -10,6 +10,13 @@
 * Stop tolerance. Every system that declares ``reached`` by its own estimate uses one tolerance
   (``stop_tolerance``, 0.35 m); the runner's STOP rule (success) stays ``goal_tolerance`` (0.5 m)
   on the true pose.
+* Goals. ``map`` (default): every system gets the goal as a point in the map frame, the frame of
+  the mapping run's first pose; a system without a global frame converts it with its own estimate
+  (NavTopo: its locations' poses relaxed over the graph), and bears that estimate's error.
+  ``native``: a system that names places by where it made them (``set_goal_anchored``: NavTopo's
+  ``(v_goal, T_goal)``, the paper's goal form) gets the goal relative to the true pose of the
+  location nearest to it in sight, as a person would pick it on the graph; the others still get a
+  map-frame point. Precise odometry makes the two the same.
 * Settings. ``precise`` is the paper's: exact odometry, no lidar range noise. ``noisy``: odometry
   random walks of 2 % and 0.5°/m, lidar range noise 1 cm. A run under a setting overrides the
   scenario file's odometry noise and range noise; without one, the file's own values hold and the
@@ -39,8 +46,9 @@ class TrialProtocol:
     initial_pose_error_yaw_deg: float = 10.0  # degrees, uniform in [-e, e]
     stop_tolerance: float = 0.35  # m, systems that say "reached" by their own estimate
     goal_tolerance: float = 0.5  # m, the runner's STOP rule on the true pose
+    goals: str = "map"  # "map": map-frame points for all; "native": location-relative for graph systems
 
-    def as_json(self) -> dict[str, float]:
+    def as_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
     @classmethod
@@ -49,8 +57,8 @@ class TrialProtocol:
         initial poses and the followers' 0.5 m tolerance."""
         if not data:
             return cls(initial_pose_error_xy=0.0, initial_pose_error_yaw_deg=0.0, stop_tolerance=0.5)
-        known = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: float(v) for k, v in data.items() if k in known})
+        known = {f.name: f.type for f in dataclasses.fields(cls)}
+        return cls(**{k: (str(v) if k == "goals" else float(v)) for k, v in data.items() if k in known})
 
     def initial_pose_error(self, seed: int, trial: int) -> NDArray[np.float64]:
         """(3,) [dx, dy, dyaw] of trial ``trial``: the error added to the true start (map frame)."""

@@ -3,7 +3,7 @@
 * One static concave triangle mesh holds the walls (the world's wall segments extruded to
   ``wall_height``), every obstacle box (sides and top; with ``with_changes``, the scenario's
   navigation-time ``world.changes`` boxes too), the floor and the ceiling. It is written
-  as an OBJ file (no vertex limit, FACTS.md) and loaded in DIRECT mode.
+  as an OBJ file (no vertex limit, docs/NOTES.md) and loaded in DIRECT mode.
 * The robot is a cylinder of the scenario's radius, 1 cm above the floor. Motion is unicycle
   kinematics in substeps of ``SUBSTEP_S``; a substep that would collide (PyBullet closest points
   between the robot and the static mesh) is cut at contact by bisection and counted as a collision.
@@ -34,7 +34,7 @@ from navtopo.types import Command, Observation
 from scenarios import Scenario
 
 SUBSTEP_S = 0.05  # kinematic integration step; trajectories are sampled at this tick
-MAX_RAYS_PER_CALL = 16383  # rayTestBatch refuses more (FACTS.md)
+MAX_RAYS_PER_CALL = 16383  # rayTestBatch refuses more (docs/NOTES.md)
 FLOOR_MARGIN_M = 5.0
 ROBOT_FLOOR_GAP_M = 0.01
 WORLD_GROUP, ROBOT_GROUP = 1, 2  # collision filter groups: rays see the world only
