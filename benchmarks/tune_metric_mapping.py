@@ -78,6 +78,8 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "lidar-measured": {**LIDAR, "pose_graph": _sigmas(0.005, 0.005, 0.03, 0.03)},
     "lidar-xy0.01-yaw0.5": {**LIDAR, "pose_graph": _sigmas(0.01, 0.01, 0.5, 0.5)},
     "lidar-xy0.05": {**LIDAR, "pose_graph": _sigmas(0.05, 0.05, 0.5, 0.5)},
+    "lidar-yaw0.25": {**LIDAR, "pose_graph": _sigmas(0.02, 0.02, 0.25, 0.25)},
+    "lidar-yaw1": {**LIDAR, "pose_graph": _sigmas(0.02, 0.02, 1.0, 1.0)},
 }
 #: what ``--configs default`` replays
 DEFAULT_SET = (
