@@ -21,7 +21,7 @@ range r proves the floor free up to r), marking cells ``FREE`` and stopping at t
 cell. Directions with no return (open sky, beyond max range) stay ``UNKNOWN``: unlike the
 reference implementation, "no return" never means "free".
 
-Warping (``warp``) and overlap (``known_iou``, ``overlap``) follow ``navtopo.geometry``:
+Warping (``warp``) and overlap (``known_overlap``, ``overlap``; ``known_iou`` too) follow ``navtopo.geometry``:
 ``warp(grid, T)`` is the grid as seen from the frame ``T`` (a pose given in the grid's frame), so a
 grid taken at pose A, warped by ``between(A, B)``, lines up with the grid taken at pose B.
 
@@ -321,12 +321,22 @@ def known_iou(grid_a: Grid, grid_b: Grid) -> float:
     return float(np.count_nonzero(known_a & known_b)) / union if union else 0.0
 
 
+def known_overlap(grid_a: Grid, grid_b: Grid) -> float:
+    """Shared known cells over the smaller known area (the overlap coefficient) of two grids in one
+    frame. Unlike the IoU it does not fall when one scan also sees far into rooms through doors
+    that the other does not: it asks whether the two look at the same place, not the same much."""
+    known_a = grid_a != UNKNOWN
+    known_b = grid_b != UNKNOWN
+    smaller = min(np.count_nonzero(known_a), np.count_nonzero(known_b))
+    return float(np.count_nonzero(known_a & known_b)) / smaller if smaller else 0.0
+
+
 def overlap(reference: Grid, query: Grid, pose: ArrayLike, config: GridConfig | None = None) -> float:
-    """Known-area IoU of two grids, the query's observation point lying at ``pose`` in the
+    """``known_overlap`` of two grids, the query's observation point lying at ``pose`` in the
     reference frame (the convention of ``scan_matching.match``: ``between(A, B)`` for a
     reference taken at A and a query at B)."""
     in_reference = warp(query, inverse(pose), config, size=reference.shape[0])
-    return known_iou(reference, in_reference)
+    return known_overlap(reference, in_reference)
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ At every update the maintainer knows the current vertex ``current`` and the robo
 it, ``pose_in_current``, integrated from odometry. Then, in the paper's order:
 
 1. still inside the current location? (the robot's cell in the location's grid is known, the
-   known-area IoU of the current grid with the location's is at least ``iou_threshold``, and the
+   known areas of the current grid and the location's overlap by at least ``min_overlap``, and the
    robot is within ``max_edge_length`` of the location's centre) → keep it; scan matching
    against the location corrects ``pose_in_current`` when it agrees with odometry;
 2. else move along an edge: the neighbours nearer than the current centre, each verified by scan
@@ -43,7 +43,9 @@ class MappingConfig(BaseModel):
 
     update_distance: float = Field(0.25, gt=0, description="the graph is updated after this much motion (m) ...")
     update_angle_deg: float = Field(15.0, gt=0, description="... or this much turning; odometry is integrated at every scan")
-    iou_threshold: float = Field(0.3, gt=0, le=1, description="still inside: known-area IoU with the location at least this")
+    min_overlap: float = Field(
+        0.3, gt=0, le=1, description="still inside: shared known area over the smaller one (local_grid.overlap) at least this"
+    )
     max_edge_length: float = Field(5.0, gt=0, description="still inside: at most this far from the location's centre (m)")
     max_neighbour_jump: float = Field(1.0, gt=0, description="a move along an edge may correct odometry by at most this (m)")
     max_correction: float = Field(0.5, gt=0, description="an in-location correction may move the pose by at most this (m)")
@@ -212,7 +214,7 @@ class GraphMaintainer:
         size = vertex_grid.shape[0]
         if not (0 <= row < size and 0 <= col < size) or vertex_grid[row, col] == UNKNOWN:
             return False
-        return overlap(vertex_grid, grid, pose, self.grid_config) >= self.config.iou_threshold
+        return overlap(vertex_grid, grid, pose, self.grid_config) >= self.config.min_overlap
 
     def _correct(self, query: PreparedGrid) -> None:
         assert self.current is not None

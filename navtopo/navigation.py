@@ -59,6 +59,9 @@ class StartupConfig(BaseModel):
     confirm_distance: float = Field(1.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
     drop_after: int = Field(2, ge=1, description="looks in a row without verification drop a hypothesis")
     same_place: float = Field(1.0, gt=0, description="m: candidates this close (through the graph) are one hypothesis")
+    same_place_in_map: float = Field(
+        1.5, gt=0, description="m: ... or this close by the locations' map poses, where the graph does not join them"
+    )
     explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
     timeout: float = Field(60.0, gt=0, description="s of simulated time without a commitment: not_localized")
 
@@ -149,6 +152,8 @@ class Startup:
         self.config = config
         self.reset()
 
+    map_poses: NDArray[np.float64] | None = None  # (V, 3) the locations in the map frame (navtopo.graph_poses)
+
     def reset(self) -> None:
         self.hypotheses: list[Hypothesis] = []
         self.looks = 0
@@ -171,8 +176,12 @@ class Startup:
         cfg = self.maintainer.config
         return bool(np.hypot(delta[0], delta[1]) >= cfg.update_distance or abs(delta[2]) >= np.radians(cfg.update_angle_deg))
 
-    def step(self, obs: Observation) -> Hypothesis | None:
-        """One tick: track the hypotheses, look when due; the committed hypothesis, or None."""
+    def step(
+        self, obs: Observation, driven: Hypothesis | None = None, route: list[int] | None = None, force: bool = False
+    ) -> Hypothesis | None:
+        """One tick: track the hypotheses, look when due (or ``force``); the committed hypothesis, or
+        None. ``driven``: the hypothesis the robot drives by, which follows ``route`` (its global
+        path) from location to location as the committed state would."""
         if self.started is None:
             self.started = obs.stamp
         if self._last_odom is not None:
@@ -181,17 +190,17 @@ class Startup:
         self._last_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         for h in self.hypotheses:
             h.tracker.integrate(obs.odom)
-        if not self._due(obs.odom):
+        if not (force or self._due(obs.odom)):
             return None
         self._last_look_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         self.looks += 1
-        self._look(obs)
+        self._look(obs, driven, route)
         return self._committed()
 
-    def _look(self, obs: Observation) -> None:
+    def _look(self, obs: Observation, driven: Hypothesis | None, route: list[int] | None) -> None:
         # the live hypotheses, each checked where it says the robot is
         for h in self.hypotheses:
-            h.tracker.update(obs.points, obs.odom, obs.stamp, force=True, localize=False)
+            h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
             if h.tracker.last_verified:
                 h.support, h.misses = h.support + 1, 0
             else:
@@ -208,14 +217,19 @@ class Startup:
                 self.seen += 1
 
     def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
-        """Does (vertex, pose) put the robot where ``h`` does? Compared through the graph."""
+        """Does (vertex, pose) put the robot where ``h`` does? Compared through the graph, or, for
+        locations the graph does not join closely (a place mapped twice), through their map poses."""
         graph = self.maintainer.graph
         if vertex == h.vertex:
             relative = np.zeros(3)
         else:
             path, length = graph.shortest_path(h.vertex, vertex)
             if path is None or length > 4 * self.maintainer.config.max_edge_length:
-                return False
+                if self.map_poses is None:
+                    return False
+                here = compose(self.map_poses[h.vertex], h.pose)
+                there = compose(self.map_poses[vertex], pose)
+                return float(np.hypot(*(here[:2] - there[:2]))) <= self.config.same_place_in_map
             relative = graph.path_pose(path)  # vertex in h.vertex's frame
         predicted = compose(relative, pose)  # the robot in h.vertex's frame, by the candidate
         return float(np.hypot(*(predicted[:2] - h.pose[:2]))) <= self.config.same_place
@@ -228,6 +242,11 @@ class Startup:
         if h.support >= self.config.confirm_looks and moved >= self.config.confirm_distance:
             return h
         return None
+
+    @property
+    def odometer(self) -> float:
+        """Metres of odometry since the start-up began."""
+        return self._odometer
 
     def best(self) -> Hypothesis | None:
         """The hypothesis to drive by while none is committed: most supported."""
@@ -271,6 +290,8 @@ class Navigator:
     _stuck_once: bool = False
     _explore: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (odom at start, path in that frame)
     _tentative: Hypothesis | None = None
+    _explore_until: float = 0.0  # the startup odometer reading where the current exploring move ends
+    _progress_mark: tuple[float, float] | None = None  # (stamp, startup odometer) of the last progress
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -295,6 +316,8 @@ class Navigator:
         self._stuck_once = False
         self._explore = None
         self._tentative = None
+        self._explore_until = 0.0
+        self._progress_mark = None
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -303,6 +326,7 @@ class Navigator:
         odometry hints, relaxed against the scan-matched edges: ``navtopo.graph_poses``)."""
         if self.map_poses is None or len(self.map_poses) != len(self.graph):
             self.map_poses = relaxed_poses(self.graph)
+        self.startup.map_poses = self.map_poses
         vertex, pose = goal_in_graph(self.graph, goal_xy, self.maintainer.grid_config, self.map_poses)
         self.set_goal_in_graph(vertex, pose)
 
@@ -328,7 +352,8 @@ class Navigator:
 
     def _step_unlocalized(self, obs: Observation) -> Command:
         startup = self.startup
-        committed = startup.step(obs)
+        driven = self._tentative if self._tentative in startup.hypotheses else None
+        committed = startup.step(obs, driven, self._route if driven is not None else None, force=self._at_path_end())
         if committed is not None:
             self.localized = True
             self.maintainer.start_at(committed.vertex, committed.pose, obs.odom)
@@ -348,13 +373,29 @@ class Navigator:
             self.status = NavStatus(Status.FAILED, "not_localized")
             return Command()
         best = startup.best()
-        if best is not None:  # drive as the best hypothesis sees it: confirmation on the way
-            if best is not self._tentative:
-                self._tentative, self._path_vertex = best, None
-            self._explore = None
+        odometer = startup.odometer
+        if self._explore is not None and odometer < self._explore_until and not self.follower.reached:
+            return self._explore_step(obs)  # an exploring move runs to its end
+        if best is not None and not self._no_progress(obs.stamp, odometer):
+            # drive as the best hypothesis sees it: confirmation on the way
+            if best is not self._tentative or self._explore is not None:
+                self._tentative, self._path_vertex, self._route, self._explore = best, None, None, None
             return self._drive(obs, best.vertex, best.pose, tentative=True)
+        # no hypothesis, or driving by the best one gets nowhere (it may be the wrong one, or two
+        # places look alike from here): move toward open space for a new view
         self._tentative = None
+        if self._explore is None or odometer >= self._explore_until or self.follower.reached:
+            self._explore = None
+            self._explore_until = odometer + startup.config.explore_distance
+            self._progress_mark = (obs.stamp, odometer)
         return self._explore_step(obs)
+
+    def _no_progress(self, stamp: float, odometer: float) -> bool:
+        """While not localized: less than 0.3 m of motion in the last 5 s."""
+        if self._progress_mark is None or odometer - self._progress_mark[1] >= 0.3:
+            self._progress_mark = (stamp, odometer)
+            return False
+        return stamp - self._progress_mark[0] > 5.0
 
     def _explore_step(self, obs: Observation) -> Command:
         """No hypothesis: drive toward the most open direction of the robot's own scan."""
@@ -401,7 +442,7 @@ class Navigator:
                 return Command()
         self._remember_obstacles(obs, vertex, pose)
         if self._needs_plan(obs, vertex, pose):
-            if not self._plan(obs, vertex, pose):
+            if not self._plan(obs, vertex, pose, tentative):
                 return Command()
         if not tentative and self._stuck(obs, pose):
             return Command()
@@ -452,8 +493,10 @@ class Navigator:
         ahead = np.vstack([pose[None, :2], self.follower.path_ahead(self.config.block_check_distance)])
         return bool(distance_to_polyline(obstacles, ahead).min() < self.robot_radius + self.config.block_clearance)
 
-    def _plan(self, obs: Observation, vertex: int, pose: NDArray) -> bool:
-        """Global path from ``vertex`` (Dijkstra once per goal and per removed edge), then the local path."""
+    def _plan(self, obs: Observation, vertex: int, pose: NDArray, tentative: bool = False) -> bool:
+        """Global path from ``vertex`` (Dijkstra once per goal and per removed edge), then the local
+        path. Driving by an unconfirmed hypothesis (``tentative``), a failure removes no edge and
+        ends nothing: the hypothesis may be the wrong one."""
         assert self.goal is not None
         t0 = time.perf_counter()
         planned = None
@@ -463,7 +506,8 @@ class Navigator:
             route = self.global_planner.path(vertex)
             if route is None:
                 self._timed(t0)
-                self.status = NavStatus(Status.FAILED, "no_path")
+                if not tentative:
+                    self.status = NavStatus(Status.FAILED, "no_path")
                 return False
             positions = path_positions(self.graph, route)
             goal_point = transform_points(positions[-1], self.goal.pose[None])
@@ -475,7 +519,7 @@ class Navigator:
                 target = points[0]
                 planned = self.local.plan(union, pose, target, self._recent_obstacles())
             self.counters["plans"] += 1
-            if planned is not None or len(route) == 1:
+            if planned is not None or len(route) == 1 or tentative:
                 break
             # no way to the next vertex in the union grid (a closed door, an obstacle the map lacks)
             self.counters["plans_failed"] += 1
@@ -484,7 +528,8 @@ class Navigator:
         self._timed(t0)
         if planned is None:
             self.counters["plans_failed"] += 1
-            self.status = NavStatus(Status.FAILED, "no_path")
+            if not tentative:
+                self.status = NavStatus(Status.FAILED, "no_path")
             return False
         self._route = route
         self._path_vertex = vertex

@@ -93,11 +93,12 @@ class MatchingConfig(BaseModel):
     field_cutoff: float = Field(default=0.2, gt=0.0, description="farther cells are left out, m")
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
-    # calibrated on corridor_150m scans (300 poses, seed 0; benchmarks/bench_scan_matching.py):
-    # 0.88 accepted 93 % of the near pairs (<= 5 m, overlap >= 0.3) with the right pose, 0 of
-    # 3000 far pairs (>= 15 m) and 6 of 3575 near pairs with a wrong pose (180° turns of
-    # symmetric corridor stretches, without a guess); 0.87 let 4 far pairs through
-    min_wall_agreement: float = Field(default=0.88, ge=0.0, le=1.0)
+    # Two thresholds, chosen on generated scenes (benchmarks/tune_scan_matching.py, seeds 101-103;
+    # BENCHMARKS.md, "Tuning"): with an odometry guess (tracking, moving along an edge, mapping)
+    # no wrong pose was accepted at any threshold >= 0.84; without one (place-recognition
+    # candidates at a start-up) 0.88 let 2.1 % of far pairs through, and only 0.96 let none
+    min_wall_agreement: float = Field(default=0.88, ge=0.0, le=1.0, description="with an initial guess")
+    min_wall_agreement_no_guess: float = Field(default=0.96, ge=0.0, le=1.0, description="without an initial guess")
     min_overlap: float = Field(default=0.2, ge=0.0, le=1.0, description="known-area IoU")
     min_matched_walls: int = Field(default=60, ge=0, description="agreeing occupied cells, both ways")
     min_score: float = Field(default=0.2, ge=0.0, le=1.0, description="wall agreement x overlap")
@@ -527,8 +528,9 @@ def verdict(
 
     Wall agreement counts, both ways, occupied cells of one grid within ``wall_tolerance`` of an
     occupied cell of the other (agree) or in its free space (contradict); cells landing in the
-    other's unknown space count for neither. Overlap is the known-area IoU (as
-    ``local_grid.overlap``, by sampling cell centres). Score = agreement x overlap.
+    other's unknown space count for neither. Overlap is the shared known area over the smaller
+    known area (``local_grid.overlap``'s measure, by sampling cell centres; not the IoU, which
+    falls when one scan sees far into rooms the other does not). Score = agreement x overlap.
     """
     pose = np.asarray(pose, dtype=np.float64)
     agree = conflict = 0
@@ -558,9 +560,9 @@ def verdict(
         reference.half,
         reference.resolution,
     )
-    union = reference.known_count + query.known_count - both
-    iou = both / union if union > 0 else 0.0
-    return wall_agreement * iou, wall_agreement, iou, agree
+    smaller = min(reference.known_count, query.known_count)
+    shared = min(both / smaller, 1.0) if smaller > 0 else 0.0
+    return wall_agreement * shared, wall_agreement, shared, agree
 
 
 def match(
@@ -583,11 +585,13 @@ def match(
     query = prepare(query, grid_config, config)
     guess = None if initial_guess is None else np.asarray(initial_guess, dtype=np.float64)
 
+    min_agreement = config.min_wall_agreement if guess is not None else config.min_wall_agreement_no_guess
+
     def passes(scored) -> bool:
         score, agreement, iou, matched = scored
         return bool(
             score >= config.min_score
-            and agreement >= config.min_wall_agreement
+            and agreement >= min_agreement
             and iou >= config.min_overlap
             and matched >= config.min_matched_walls
         )

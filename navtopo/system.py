@@ -135,6 +135,7 @@ class NavTopo:
             )
         system = cls(config, graph, mapping=False, context=context)
         system.navigator.map_poses = relaxed_poses(graph)  # for map-frame goals: part of loading
+        system.navigator.startup.map_poses = system.navigator.map_poses
         return system
 
     def mapping_stats(self) -> dict[str, Any]:

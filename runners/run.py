@@ -102,12 +102,15 @@ def deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any
     return merged
 
 
-def resolved_configs(names: list[str], overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Each system's full config: defaults with the overrides merged in, validated by its model."""
+def resolved_configs(names: list[str], overrides: dict[str, Any] | None = None, setting: str | None = None) -> dict[str, Any]:
+    """Each system's full config: defaults, then the system's overrides for the run's setting (its
+    configuration for that odometry), then the user's, validated by its model."""
     out = {}
     for name in names:
         entry = get_system(name)
-        data = deep_merge(entry.default_config().model_dump(mode="json"), (overrides or {}).get(name) or {})
+        data = entry.default_config().model_dump(mode="json")
+        data = deep_merge(data, entry.setting_overrides.get(setting or "", {}))
+        data = deep_merge(data, (overrides or {}).get(name) or {})
         out[name] = entry.config_model.model_validate(data).model_dump(mode="json")
     return out
 
@@ -151,10 +154,10 @@ def execute(
         systems = options.systems
         seed = scenario.spec.seed if options.seed is None else options.seed
         trial_count = len(scenario.trials) if options.trials is None else min(options.trials, len(scenario.trials))
-        configs = resolved_configs(systems, options.config_overrides)
         protocol = options.protocol
         setting_override = options.setting
         scenario = apply_setting(scenario, setting_override)
+        configs = resolved_configs(systems, options.config_overrides, setting_of(scenario))
         run = new_run_dir(options, scenario, seed)
         run.root.mkdir(parents=True, exist_ok=True)
         write_json(

@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -96,6 +96,7 @@ class SystemEntry:
     privileged: bool = False
     wants_initial_pose: bool = False
     description: str = ""
+    setting_overrides: dict[str, dict[str, Any]] = field(default_factory=dict)  # {setting: config overrides}
 
     def default_config(self) -> BaseModel:
         return self.config_model()
@@ -111,17 +112,20 @@ _REGISTRY: dict[str, SystemEntry] = {}
 
 
 def register_system(
-    name: str, *, config: type[BaseModel], privileged: bool = False, wants_initial_pose: bool = False, description: str = ""
+    name: str,
+    *,
+    config: type[BaseModel],
+    privileged: bool = False,
+    wants_initial_pose: bool = False,
+    description: str = "",
+    setting_overrides: dict[str, dict[str, Any]] | None = None,
 ) -> Callable[[type], type]:
+    """Register a system class; ``setting_overrides``: config overrides the runner applies under a
+    benchmark setting (``runners.protocol.SETTINGS``), as a user configures a robot for its sensors."""
+
     def decorate(cls: type) -> type:
-        _REGISTRY[name] = SystemEntry(
-            name,
-            cls,
-            config,
-            privileged,
-            wants_initial_pose,
-            description or ((cls.__doc__ or "").strip().splitlines() or [""])[0],
-        )
+        summary = description or ((cls.__doc__ or "").strip().splitlines() or [""])[0]
+        _REGISTRY[name] = SystemEntry(name, cls, config, privileged, wants_initial_pose, summary, dict(setting_overrides or {}))
         return cls
 
     return decorate
@@ -154,7 +158,10 @@ def _load_builtin(name: str | None = None) -> None:
         if builtin in _REGISTRY or (name is not None and builtin != name):
             continue
         loaded = importlib.import_module(module)
-        register_system(builtin, config=getattr(loaded, config_name), **flags)(getattr(loaded, cls_name))
+        overrides = getattr(loaded, "SETTING_OVERRIDES", None)
+        register_system(builtin, config=getattr(loaded, config_name), setting_overrides=overrides, **flags)(
+            getattr(loaded, cls_name)
+        )
 
 
 def registry() -> dict[str, SystemEntry]:

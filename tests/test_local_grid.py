@@ -24,6 +24,7 @@ from navtopo.local_grid import (
     encode_png,
     grid_from_points,
     known_iou,
+    known_overlap,
     obstacle_points,
     overlap,
     warp,
@@ -294,13 +295,17 @@ def test_grids_of_two_poses_line_up_with_the_between_pose():
     right = known_iou(a_in_b, grid_b)
     wrong = known_iou(warp(grid_a, between(pose_b, pose_a), config), grid_b)
     assert right > 0.85 and wrong < 0.6
-    # overlap(reference, query, pose of query in reference) is the same measure
+    # overlap(reference, query, pose of query in reference): shared known area over the smaller one
     assert overlap(grid_a, grid_b, between(pose_a, pose_b), config) == pytest.approx(
-        known_iou(grid_a, warp(grid_b, between(pose_b, pose_a), config)), abs=1e-9
+        known_overlap(grid_a, warp(grid_b, between(pose_b, pose_a), config)), abs=1e-9
     )
-    assert overlap(grid_a, grid_b, between(pose_a, pose_b), config) > 0.85
-    assert overlap(grid_a, grid_b, between(pose_b, pose_a), config) < 0.6
-    assert known_iou(grid_a, np.zeros_like(grid_a)) == 0.0
+    assert overlap(grid_a, grid_b, between(pose_a, pose_b), config) > 0.9
+    assert overlap(grid_a, grid_b, between(pose_b, pose_a), config) < 0.8  # the walls, not the area, tell poses apart
+    assert known_iou(grid_a, np.zeros_like(grid_a)) == 0.0 and known_overlap(grid_a, np.zeros_like(grid_a)) == 0.0
+    # a grid that sees more (here: all of a room the other sees half of) still overlaps fully
+    half = grid_a.copy()
+    half[:, : config.size // 2] = 0
+    assert known_overlap(grid_a, half) == pytest.approx(1.0) and known_iou(grid_a, half) < 0.7
 
 
 def test_compact_forms_round_trip_and_are_small(room_grid):

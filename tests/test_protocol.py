@@ -281,3 +281,14 @@ def test_the_manifest_records_the_protocol_and_the_setting(tmp_path):
     }
     bad = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--setting", "foggy", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 2 and "--setting" in bad.output and not (tmp_path / "x").exists()
+
+
+def test_a_system_is_configured_for_the_setting_as_a_user_configures_a_robot():
+    from runners.run import resolved_configs
+
+    precise = resolved_configs(["metric_grid", "navtopo"], None, "precise")
+    noisy = resolved_configs(["metric_grid", "navtopo"], {"metric_grid": {"planning": {"replan_period": 3.0}}}, "noisy")
+    assert precise["metric_grid"]["odometry"]["source"] == "wheel"
+    assert noisy["metric_grid"]["odometry"]["source"] == "lidar"  # kiss-icp for noisy wheels
+    assert noisy["metric_grid"]["planning"]["replan_period"] == 3.0  # the user's own overrides still win
+    assert precise["navtopo"] == noisy["navtopo"]  # NavTopo has no setting-specific configuration
