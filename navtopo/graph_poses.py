@@ -23,8 +23,8 @@ from scipy.sparse.linalg import spsolve
 from navtopo.geometry import between, wrap_angle
 from navtopo.graph import TopologicalGraph
 
-EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm median)
-EDGE_SIGMA_YAW = np.radians(0.5)
+EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm median, up to 0.2 m)
+EDGE_SIGMA_YAW = np.radians(1.0)  # (edge rotation errors ~0.2° median, up to 1.5°)
 HINT_FLOOR_XY = 0.001  # m: no relative hint is trusted more than this ...
 HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
 ANCHOR_SIGMA = 1e-6
@@ -56,19 +56,17 @@ def _residuals(poses: NDArray, u: NDArray, v: NDArray, measured: NDArray) -> tup
 
 
 def _hint_noise(graph: TopologicalGraph, travel: NDArray) -> tuple[float, float]:
-    """Per-√metre noise of the hints, from how far they disagree with the scan-matched edges between
-    locations made one after the other, less what the edges' own error explains."""
+    """Per-√metre noise of the hints, from how far they disagree with the scan-matched edges (over
+    the odometry travelled between the two locations' making), less what the edges' own error explains."""
     xy, yaw, metres = [], [], []
     for u, v, pose_uv in graph.edges():
-        if abs(u - v) != 1:
-            continue
         hinted = between(graph.vertices[u].pose_hint, graph.vertices[v].pose_hint)
         error = between(pose_uv, hinted)
         xy.append(float(np.hypot(error[0], error[1])) ** 2)
         yaw.append(float(wrap_angle(error[2])) ** 2)
         metres.append(max(abs(float(travel[v] - travel[u])), 0.5))
     if not xy:
-        return 0.02, np.radians(0.5)  # nothing to learn from: assume a poor wheel odometry
+        return 0.0, 0.0  # no edge: the hints alone place the locations
     per_metre = float(np.median(metres))
     k_xy = np.sqrt(max(float(np.median(xy)) - 2 * EDGE_SIGMA_XY**2, 0.0) / per_metre)
     k_yaw = np.sqrt(max(float(np.median(yaw)) - EDGE_SIGMA_YAW**2, 0.0) / per_metre)

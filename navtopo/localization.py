@@ -100,13 +100,23 @@ class Localizer:
         vertex: int,
         guess: NDArray[np.float64] | None = None,
         max_jump: float | None = None,
+        strict: bool = False,
     ) -> Localized | None:
-        """Match the current grid against one vertex; the robot's pose in it, or None."""
-        result = match(self.grids.get(vertex), query, initial_guess=guess, config=self.matching, grid_config=self.grid_config)
+        """Match the current grid against one vertex; the robot's pose in it, or None. ``strict``:
+        see ``scan_matching.match``.
+
+        With a guess, a match that shares little known area (below ``min_overlap``, the threshold
+        without a guess) still says the place is right, but its pose is less sure than the guess
+        (few walls in common fix the rotation poorly): the guess is kept as the pose."""
+        result = match(
+            self.grids.get(vertex), query, initial_guess=guess, config=self.matching, grid_config=self.grid_config, strict=strict
+        )
         if not result.accepted:
             return None
         if guess is not None and max_jump is not None and float(np.hypot(*(result.pose[:2] - guess[:2]))) > max_jump:
             return None
+        if guess is not None and result.overlap < self.matching.min_overlap:
+            return Localized(vertex, np.asarray(guess, dtype=np.float64).copy(), result)
         return Localized(vertex, result.pose, result)
 
     def localize(
@@ -146,7 +156,8 @@ class Localizer:
                 if float(np.hypot(guess[0], guess[1])) > gate:
                     continue
             # a hinted match may move the robot away from its hint by what drift explains, no more
-            located = self.verify(query, vertex, guess, gate)
+            # recognising a place (not tracking one): the verdict's thresholds without a guess
+            located = self.verify(query, vertex, guess, gate, strict=True)
             if located is not None:
                 found.append(located)
         found.sort(key=lambda loc: -loc.result.score)

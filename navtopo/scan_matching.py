@@ -99,9 +99,13 @@ class MatchingConfig(BaseModel):
     # candidates at a start-up) 0.88 let 2.1 % of far pairs through, and only 0.96 let none
     min_wall_agreement: float = Field(default=0.88, ge=0.0, le=1.0, description="with an initial guess")
     min_wall_agreement_no_guess: float = Field(default=0.96, ge=0.0, le=1.0, description="without an initial guess")
-    min_overlap: float = Field(default=0.2, ge=0.0, le=1.0, description="known-area IoU")
+    min_overlap: float = Field(default=0.2, ge=0.0, le=1.0, description="shared known area over the smaller one")
     min_matched_walls: int = Field(default=60, ge=0, description="agreeing occupied cells, both ways")
     min_score: float = Field(default=0.2, ge=0.0, le=1.0, description="wall agreement x overlap")
+    # with an odometry guess, a place seen from a few metres away through other doors shares little
+    # known area yet its walls agree (0.13-0.18 overlap, agreement ~1, 140+ walls in a ring building)
+    min_overlap_guess: float = Field(default=0.1, ge=0.0, le=1.0, description="min_overlap with an initial guess")
+    min_score_guess: float = Field(default=0.1, ge=0.0, le=1.0, description="min_score with an initial guess")
 
 
 @dataclass(frozen=True)
@@ -571,9 +575,12 @@ def match(
     initial_guess: ArrayLike | None = None,
     config: MatchingConfig | None = None,
     grid_config: GridConfig | None = None,
+    strict: bool = False,
 ) -> MatchResult:
     """Register ``query`` to ``reference``: the pose of the query's observation point in the
     reference frame (``between(A, B)`` for grids observed at poses A and B), with a verdict.
+    ``strict``: judge by the thresholds without a guess even with one (a place to be recognised,
+    as opposed to the place the robot is tracked in).
 
     initial_guess: (3,) the same pose from odometry, if known: it is refined first and, if that
     scores ``guess_first_score``, taken without feature matching; otherwise it gates the feature
@@ -585,15 +592,15 @@ def match(
     query = prepare(query, grid_config, config)
     guess = None if initial_guess is None else np.asarray(initial_guess, dtype=np.float64)
 
-    min_agreement = config.min_wall_agreement if guess is not None else config.min_wall_agreement_no_guess
+    if guess is not None and not strict:
+        min_agreement, min_overlap, min_score = config.min_wall_agreement, config.min_overlap_guess, config.min_score_guess
+    else:
+        min_agreement, min_overlap, min_score = config.min_wall_agreement_no_guess, config.min_overlap, config.min_score
 
     def passes(scored) -> bool:
-        score, agreement, iou, matched = scored
+        score, agreement, shared, matched = scored
         return bool(
-            score >= config.min_score
-            and agreement >= min_agreement
-            and iou >= config.min_overlap
-            and matched >= config.min_matched_walls
+            score >= min_score and agreement >= min_agreement and shared >= min_overlap and matched >= config.min_matched_walls
         )
 
     def result(pose, scored, inliers, source) -> MatchResult:
