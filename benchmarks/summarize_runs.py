@@ -82,7 +82,8 @@ def main() -> None:
                     f"| {label} | {mapping.get('vertices')} | {mapping.get('edges')} | "
                     f"{_num(edges['translation_m']['median'])} / {_num(edges['translation_m']['max'])} | "
                     f"{_num(edges['rotation_deg']['median'], 2)} / {_num(edges['rotation_deg']['max'], 2)} | "
-                    f"{_num(mapping.get('vertices_second_half_share'), 2)} | "
+                    f"{_num(mapping.get('vertices_second_half_share'), 2)} "
+                    f"({mapping.get('vertices_second_half', '–')}, {mapping.get('vertices_second_half_revisited', '–')}) | "
                     f"{_num(per_scan.get('median'), 1)} / {_num(per_scan.get('p95'), 1)} | "
                     f"{counters.get('inside')} / {counters.get('moved_along_edge')} / {counters.get('localized')} / "
                     f"{counters.get('loop_closures')} / {counters.get('rejected_edges')} / {counters.get('stayed')} |"
@@ -111,7 +112,8 @@ def main() -> None:
     if rows_map:
         print(
             "\n| scenario / setting | vertices | edges | edge error median / max (m) | edge error median / max (°) | "
-            "new in 2nd half | ms per scan median / p95 | inside / along edge / localized / loop closures / rejected / stayed |"
+            "new in 2nd half (count, at revisited places) | ms per scan median / p95 | "
+            "inside / along edge / localized / loop closures / rejected / stayed |"
         )
         print("|---|---|---|---|---|---|---|---|")
         print("\n".join(rows_map))

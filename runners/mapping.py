@@ -42,6 +42,25 @@ class MappingSystem:
     config: BaseModel
 
 
+REVISIT_RADIUS_M = 1.0  # a location made this close to a first-half pose maps a place twice
+
+
+def revisited_late(
+    vertex_stamps: list[float], true_at_stamp: dict[float, np.ndarray], travelled_at_stamp: dict[float, float], half: float
+) -> int:
+    """Locations made in the route's second half within ``REVISIT_RADIUS_M`` of a true pose the
+    robot held in its first half."""
+    early = np.array([pose[:2] for stamp, pose in true_at_stamp.items() if travelled_at_stamp[stamp] <= half])
+    if early.size == 0:
+        return 0
+    count = 0
+    for stamp in vertex_stamps:
+        if travelled_at_stamp.get(stamp, 0.0) > half:
+            gap = np.min(np.hypot(*(early - true_at_stamp[stamp][:2]).T))
+            count += int(gap <= REVISIT_RADIUS_M)
+    return count
+
+
 def context_for(
     entry: SystemEntry, scenario: Scenario, sim: Simulator | None, protocol: TrialProtocol | None = None
 ) -> SystemContext:
@@ -177,6 +196,9 @@ def run_mapping(
                 late = sum(1 for stamp in vertex_stamps if travelled_at_stamp.get(stamp, 0.0) > half)
                 report["vertices_second_half"] = late
                 report["vertices_second_half_share"] = round(late / max(len(vertex_stamps), 1), 4)
+                # of those, the ones made where the robot had already been (a place mapped twice),
+                # as opposed to places the route's first half never entered (a room visited late)
+                report["vertices_second_half_revisited"] = revisited_late(vertex_stamps, true_at_stamp, travelled_at_stamp, half)
                 # the true pose (scenario frame) where each location was made: the runner's key to
                 # check a graph system's own estimates (``anchored_pose``) afterwards; never given to it
                 report["anchors"] = [[stamp, *(round(float(v), 6) for v in true_at_stamp[stamp])] for stamp in vertex_stamps]

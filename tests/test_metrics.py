@@ -164,3 +164,23 @@ def test_edge_errors_compare_each_edge_with_the_true_relative_pose():
     off = edge_errors([(0.0, 1.0, [2.3, 0.4, np.pi / 2 + np.radians(2.0)]), (0.0, 9.0, [0, 0, 0])], truth)
     assert off["translation_m"]["max"] == pytest.approx(0.5) and off["rotation_deg"]["max"] == pytest.approx(2.0)
     assert off["count"] == 1  # an edge whose stamps have no true pose is left out
+
+
+def test_late_locations_count_as_revisits_only_where_the_first_half_had_been():
+    from runners.mapping import revisited_late
+
+    # the robot drives x = 0..10 m (first half), then back and into a room at (5, 4)
+    stamps = [float(i) for i in range(31)]
+    xs = [*range(11), *range(10, 0, -1), *([5.0] * 10)]
+    ys = [0.0] * 21 + [0.4 * k for k in range(1, 11)]
+    true_at = {s: np.array([x, y, 0.0]) for s, x, y in zip(stamps, xs, ys, strict=True)}
+    travelled, total = {}, 0.0
+    for i, s in enumerate(stamps):
+        if i:
+            total += float(np.hypot(xs[i] - xs[i - 1], ys[i] - ys[i - 1]))
+        travelled[s] = total
+    half = total / 2.0
+    # a location at (5, 0) on the way back (a place mapped twice), one in the room at (5, 4)
+    late = [stamps[16], stamps[30]]
+    assert travelled[stamps[16]] > half and np.allclose(true_at[stamps[16]][:2], [5, 0])
+    assert revisited_late([0.0, *late], true_at, travelled, half) == 1
