@@ -1,0 +1,105 @@
+"""NavTopo's mapping on generated scenes, replayed from recorded drives: edge errors against the
+truth, locations made in the route's second half (and how many of those at places already
+visited), the maintainer's counters, for candidate configs.
+
+Each (scene, setting) mapping drive is simulated once (``_tuning.record_drive``, as
+``runners.mapping`` drives it) and cached under ``--cache``; each candidate replays it through
+``NavTopo.create(config).observe(obs)``. Scenes come from ``scenarios.generators`` with seeds apart
+from the benchmark's (the tuning rule); a candidate is a name and a YAML mapping of NavTopo config
+overrides.
+
+    .venv/bin/python benchmarks/tune_navtopo_mapping.py --kind ring --length 140 --seeds 101 \\
+        --settings precise,noisy --candidate 'no-refine={mapping: {edge_measurements: 1}}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
+
+from navtopo import geometry as se2
+from navtopo.system import NavTopo, NavTopoConfig
+from runners.mapping import revisited_late
+from runners.systems import SystemContext
+
+
+def merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in overrides.items():
+        out[key] = merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any]:
+    config = NavTopoConfig.model_validate(merge(NavTopoConfig().model_dump(), overrides))
+    system = NavTopo.create(config, SystemContext(robot=scenario.spec.robot, sensor=scenario.spec.sensor))
+    started = time.perf_counter()
+    for k in range(len(rec)):
+        system.observe(rec.observation(k))
+    system.finish_mapping()
+    seconds = time.perf_counter() - started
+    stats = system.mapping_stats()
+    true = {float(s): rec.true[k] for k, s in enumerate(rec.stamps)}
+    steps = np.hypot(*np.diff(rec.true[:, :2], axis=0).T)
+    travelled = dict(zip((float(s) for s in rec.stamps), np.r_[0.0, np.cumsum(steps)], strict=True))
+    half = float(travelled[float(rec.stamps[-1])]) / 2.0
+    edges = []
+    for stamp_u, stamp_v, pose in stats["edges_stamped"]:
+        error = se2.between(se2.between(true[stamp_u], true[stamp_v]), np.asarray(pose))
+        edges.append((float(np.hypot(error[0], error[1])), float(np.degrees(abs(error[2]))), stamp_u, stamp_v))
+    stamps = stats["vertex_stamps"]
+    late = sum(1 for s in stamps if travelled[s] > half)
+    worst = max(edges, default=(0.0, 0.0, 0.0, 0.0))
+    return {
+        "vertices": stats["vertices"],
+        "edges": stats["edges"],
+        "edge_m_median": round(float(np.median([e[0] for e in edges])), 4) if edges else None,
+        "edge_m_max": round(worst[0], 4),
+        "edge_deg_max": round(max((e[1] for e in edges), default=0.0), 3),
+        "edges_over_0.3m_or_3deg": sum(1 for e in edges if e[0] > 0.3 or e[1] > 3.0),
+        "worst_edge_at": [np.round(true[worst[2]][:2], 2).tolist(), np.round(true[worst[3]][:2], 2).tolist()] if edges else None,
+        "second_half": late,
+        "second_half_share": round(late / max(len(stamps), 1), 4),
+        "second_half_revisited": revisited_late(stamps, true, travelled, half),
+        "counters": stats["counters"],
+        "seconds": round(seconds, 1),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--kind", default="ring", help="tree (corridor_tree) or ring (ring_building)")
+    parser.add_argument("--length", type=float, default=140.0)
+    parser.add_argument("--seeds", default="101", help="comma list; never the benchmark's")
+    parser.add_argument("--settings", default="precise,noisy")
+    parser.add_argument("--route-factor", type=float, default=6.0)
+    parser.add_argument("--candidate", action="append", default=[], help="NAME=YAML overrides; 'default' always runs first")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    parser.add_argument("--json", type=Path, help="also write the rows here")
+    args = parser.parse_args()
+    candidates = {"default": {}}
+    for item in args.candidate:
+        name, _, text = item.partition("=")
+        candidates[name] = yaml.safe_load(text) or {}
+    rows = []
+    for seed in parse_list(args.seeds, int):
+        for setting in parse_list(args.settings):
+            scenario, rec, key = recording(args.cache, args.kind, args.length, seed, setting, args.route_factor)
+            for name, overrides in candidates.items():
+                row = {"scene": key, "setting": setting, "candidate": name, **replay(scenario, rec, overrides)}
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"code": git_state(), "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
