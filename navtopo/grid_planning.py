@@ -58,11 +58,15 @@ def plan_path(
     goal_xy: ArrayLike,
     snap_cells: int = 0,
     levels: int | None = None,
+    exact_goal: bool = True,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
     masks: passable (H, W) bool rasters, or a callable giving the i-th one on demand (a caller that
     builds its fallbacks only when needed), then with ``levels`` their number.
+    exact_goal: end at ``goal_xy`` itself (default); False ends at the free cell the goal snapped
+    to, for a goal the robot does not fit at (a goal estimated off into a wall is approached, never
+    driven into).
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -78,7 +82,8 @@ def plan_path(
         cells = grid_search.theta_star(passable, start, goal)
         if cells is None:
             continue
-        return PlannedPath(waypoints(frame, cells, start_xy, goal_xy), level)
+        end_xy = goal_xy if exact_goal else frame.to_world(cells[-1:])[0]
+        return PlannedPath(waypoints(frame, cells, start_xy, end_xy), level)
     return None
 
 

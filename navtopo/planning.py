@@ -285,7 +285,10 @@ class LocalPlanner:
                 kernel = _disk(radius, union.frame.resolution)
                 return union.mask(kind, radius) & ~(cv2.dilate(stamp, kernel) > 0)
 
-        return plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels))
+        # a target the robot does not fit at even next to unknown space (a goal estimated into a
+        # wall) is approached as near as the free space allows, never driven into
+        fits = bool(union.values_at(np.asarray(target, dtype=np.float64)[None, :2], union.mask("unknown", self.tight), True)[0])
+        return plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels), exact_goal=fits)
 
     def new_obstacles(self, union: UnionGrid, pose: NDArray, points: NDArray) -> NDArray[np.float64]:
         """Obstacle returns (N, 2+, robot frame) near the robot that no mapped wall explains, in v_cur's frame."""

@@ -166,3 +166,28 @@ def test_the_papers_goal_form_names_the_location_the_goal_lies_in(tiny, tiny_gra
     record = run_trial_job(job)["records"][0]
     assert record["success"], record["reason"]
     assert record["goal_conversion_error_m"] < 1e-6  # given in the location's own frame: nothing to convert
+
+
+def test_a_goal_estimated_into_a_wall_is_approached_never_driven_into():
+    """A map-frame goal converted with an error can land in a wall: the local path stops where the
+    robot fits (as far from the wall as its radius), while a goal in free space is reached exactly."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), FREE, np.uint8)
+    centre = GRID.size // 2
+    wall_col = centre + int(round(3.0 / GRID.resolution))  # a wall 3 m ahead of the location's centre
+    grid[:, wall_col : wall_col + 3] = OCCUPIED
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    radius = 0.3
+    planner = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), radius, PlanningConfig())
+    walls = union.frame.to_world(np.argwhere(union.cells == OCCUPIED))
+    wall_x = walls[:, 0].min() - GRID.resolution / 2  # the wall's near face, in the location's frame
+    assert wall_x == pytest.approx(3.0, abs=0.11)
+    into_wall = np.array([wall_x + 0.1, 0.0])
+    planned = planner.plan(union, np.zeros(3), into_wall)
+    assert planned is not None
+    assert planned.points[-1, 0] <= wall_x - radius + 1e-6  # stops a robot radius short of the wall
+    free_goal = np.array([1.5, 0.4])
+    reached = planner.plan(union, np.zeros(3), free_goal)
+    assert reached is not None and np.array_equal(reached.points[-1], free_goal)
