@@ -32,8 +32,8 @@ from numpy.typing import NDArray
 from navtopo import geometry as se2
 from navtopo.types import Command, Observation
 from scenarios import Scenario
+from scenarios.schema import SUBSTEP_S  # kinematic integration step; trajectories are sampled at this tick
 
-SUBSTEP_S = 0.05  # kinematic integration step; trajectories are sampled at this tick
 MAX_RAYS_PER_CALL = 16383  # rayTestBatch refuses more (docs/NOTES.md)
 FLOOR_MARGIN_M = 5.0
 ROBOT_FLOOR_GAP_M = 0.01

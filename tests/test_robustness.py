@@ -3,7 +3,135 @@ a navigation result), Ctrl-C stops, nothing is overwritten or half-written."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+import yaml
+from scenarios import ScenarioError, load_scenario
+from scenarios.schema import MAX_RAYS_PER_SCAN
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = ROOT / "scenarios" / "bundled" / "tiny.yaml"
+
+
+def small(**overrides) -> dict:
+    """A straight 10 m corridor, a short route, one trial: loads in well under a second."""
+    spec = {
+        "format": "navtopo-scenario/1",
+        "name": "t",
+        "world": {"corridors": [{"points": [[0, 0], [10, 0]], "width": 2.0}]},
+        "mapping_route": {"waypoints": [[1, 0], [9, 0]]},
+        "trials": [{"start": [1, 0, 0], "goal": [9, 0]}],
+    }
+    for key, value in overrides.items():
+        section, _, sub = key.partition("__")
+        if sub:
+            spec.setdefault(section, {})[sub] = value
+        else:
+            spec[section] = value
+    return spec
+
+
+def write(tmp_path: Path, spec: dict | str, name: str = "s.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(spec if isinstance(spec, str) else yaml.safe_dump(spec))
+    return path
+
+
+def refused(path: Path) -> str:
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(f"{path}: "), message
+    return message
+
+
+# ---------------------------------------------------------------------------------------------
+# scenario files
+
+
+def test_a_binary_file_is_one_line_not_a_unicode_error(tmp_path):
+    path = tmp_path / "garbage.yaml"
+    path.write_bytes(bytes(range(256)) * 4)
+    assert "not a text file" in refused(path)
+    path.write_bytes(b"name: \xff\xfe\xfa")
+    assert "not a UTF-8 text file" in refused(path)
+
+
+def test_a_duplicated_key_is_refused_with_its_line(tmp_path):
+    text = TINY.read_text().replace("seed: 1\n", "seed: 1\nseed: 2\n")
+    assert "duplicate key 'seed'" in refused(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("written", ["1e-300", "1E-3", "2.5e-2"])
+def test_numbers_in_exponent_form_are_numbers(tmp_path, written):
+    path = write(tmp_path, TINY.read_text().replace("range_noise: 0.0", f"range_noise: {written}"))
+    assert load_scenario(path, with_trials=False).spec.sensor.range_noise == float(written)
+
+
+def test_an_exponent_beyond_float_is_not_finite(tmp_path):
+    path = write(tmp_path, TINY.read_text().replace("max_range: 15.0", "max_range: 1e999"))
+    assert "sensor.max_range: " in refused(path) and "finite" in refused(path)
+
+
+def test_a_map_yaml_syntax_error_is_one_line_naming_the_map_file(tmp_path):
+    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: [0.05\norigin: [0, 0, 0]\n")
+    path = write(tmp_path, small(world={"map": {"yaml": "m.yaml"}}))
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert "\n" not in str(info.value) and str(info.value).startswith(f"{tmp_path / 'm.yaml'}: line ")
+
+
+def test_a_map_path_that_is_a_folder_says_so(tmp_path):
+    (tmp_path / "m.yaml").mkdir()
+    assert "is a folder" in refused(write(tmp_path, small(world={"map": {"yaml": "m.yaml"}})))
+
+
+def test_a_huge_map_image_is_refused_from_its_header(tmp_path):
+    (tmp_path / "m.pgm").write_bytes(b"P5\n30000 30000\n255\n")  # 900 M pixels, never decoded
+    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    path = write(tmp_path, small(world={"map": {"yaml": "m.yaml"}}))
+    with pytest.raises(ScenarioError, match="too large"):
+        load_scenario(path)
+
+
+def test_a_goal_outside_the_map_is_outside_not_in_a_wall(tmp_path):
+    message = refused(write(tmp_path, small(trials=[{"start": [1, 0, 0], "goal": [120, 7]}])))
+    assert "trials.0.goal: " in message and "outside the map" in message and "wall" not in message
+
+
+@pytest.mark.parametrize(
+    ("overrides", "key", "reason"),
+    [
+        ({"sensor__horizontal_resolution": 0.0001}, "sensor", f"{MAX_RAYS_PER_SCAN:,}"),
+        ({"sensor__rate_hz": 0.001}, "sensor.rate_hz", "greater than or equal to 1"),
+        ({"sensor__rate_hz": 1e6}, "sensor.rate_hz", "less than or equal to 50"),
+        ({"sensor__mount_height": 3.0}, "sensor.mount_height", "over the walls"),
+        ({"world__wall_height": 0.5, "sensor__mount_height": 0.6}, "sensor.mount_height", "over the walls"),
+        ({"robot__max_linear": 100.0}, "robot", "collision check"),
+        ({"seed": -1}, "seed", "greater than or equal to 0"),
+        ({"trials": [{"start": [1, 0, 0], "goal": [1, 0]}]}, "trials.0.goal", "without moving"),
+        ({"trials": [{"start": [1, 0, 0], "goal": [1.3, 0.2]}]}, "trials.0.goal", "goal tolerance"),
+        ({"mapping_route": {"waypoints": [[1, 0], [1.2, 0]]}}, "mapping_route", "at least"),
+        ({"mapping_route": {"auto": {"min_length": 1e12}}}, "mapping_route.auto.min_length", "less than or equal"),
+    ],
+)
+def test_inputs_that_would_hang_or_fail_later_are_refused_in_validation(tmp_path, overrides, key, reason):
+    message = refused(write(tmp_path, small(**overrides)))
+    assert message.startswith(f"{tmp_path / 's.yaml'}: {key}: "), message
+    assert reason in message, message
+
+
+def test_a_route_leg_through_a_wall_is_reported_as_rerouted(tmp_path):
+    spec = small(
+        world={"corridors": [{"points": [[0, 0], [10, 0], [10, 8], [0, 8]], "width": 2.0}]},
+        mapping_route={"waypoints": [[1, 0], [1, 8]]},
+        trials=[],
+    )
+    path = write(tmp_path, spec)
+    scenario = load_scenario(path)
+    assert len(scenario.notes) == 1 and "mapping_route.waypoints.1" in scenario.notes[0]
+    assert "8.0 m straight" in scenario.notes[0] and "re-routed" in scenario.notes[0]
 
 
 # ---------------------------------------------------------------------------------------------
