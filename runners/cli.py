@@ -5,17 +5,16 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from scenarios import ScenarioError, bundled_names, load_scenario
+# the heavy modules (scenarios: scipy, shapely, numba; the systems: torch) are imported inside the
+# commands that need them, so that `--help` and argument errors answer at once
 
 app = typer.Typer(
-    help="navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -26,18 +25,81 @@ console = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
 
 
-def fail(message: str, code: int = 2) -> None:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+def fail(message: str, code: int = 2) -> NoReturn:
+    err.print(f"[bold red]error:[/] {one_line(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
-def _load(name: str, with_trials: bool = True):
+def note(message: str) -> None:
+    err.print(f"note: {one_line(message)}", highlight=False, soft_wrap=True)
+
+
+def one_line(message: str) -> str:
+    return " ".join(str(message).split("\n")).strip()
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib import metadata
+
+        try:
+            version = metadata.version("navtopo-bench")
+        except metadata.PackageNotFoundError:
+            version = "unknown (not installed)"
+        console.print(f"navtopo-bench {version}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool, typer.Option("--version", help="print the version and exit", callback=_version, is_eager=True)
+    ] = False,
+) -> None:
+    """navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner."""
+
+
+def _load(name: str, with_trials: bool = True, quiet: bool = False):
+    from scenarios import ScenarioError, load_scenario
+
     try:
-        return load_scenario(name, with_trials=with_trials)
+        scenario = load_scenario(name, with_trials=with_trials)
     except ScenarioError as exc:
         fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the file
-        fail(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}".replace("\n", " "))
+        fail(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}")
+    if not quiet:
+        for line in scenario.notes:
+            note(line)
+    return scenario
+
+
+def writable_file(path: Path, option: str, suffixes: tuple[str, ...] | None = None) -> Path:
+    """Refuse (one line) an output file that cannot be written, before any work is done."""
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        fail(f"{option} {path}: the file name must end in {' or '.join(suffixes)}")
+    if path.is_dir():
+        fail(f"{option} {path}: is a folder; give a file name")
+    writable_dir(path.parent, option, named=path)
+    return path
+
+
+def writable_dir(path: Path, option: str, named: Path | None = None) -> Path:
+    """Refuse a folder that cannot be made or written (an ancestor that is a file, no permission);
+    the message names ``named`` (default: the folder)."""
+    import os
+
+    probe = Path(path)
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    named = path if named is None else named
+    if probe.exists() and not probe.is_dir():
+        fail(f"{option} {named}: {probe} is a file, not a folder")
+    if probe.exists() and not os.access(probe, os.W_OK | os.X_OK):
+        fail(f"{option} {named}: {probe} is not writable")
+    return path
 
 
 # ---------------------------------------------------------------------------------------------
@@ -238,6 +300,8 @@ def _read_overrides(path: Path, names: list[str]) -> dict:
 
 
 def _run_one(scenario, options, execute) -> None:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
     from runners.executors import ExecutorUnavailable
 
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
@@ -311,10 +375,13 @@ def print_summary(run_dir: Path) -> None:
 # ---------------------------------------------------------------------------------------------
 # scenarios
 
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
 
 @scenario_app.command("list")
 def scenario_list() -> None:
     """The bundled scenarios, one line each."""
+    from scenarios import bundled_names
     from scenarios.scenario import resolve_path
     from scenarios.schema import read_spec
 
@@ -346,10 +413,12 @@ def scenario_show(
 @scenario_app.command("validate")
 def scenario_validate(files: Annotated[list[str], typer.Argument(help="scenario YAML files")]) -> None:
     """Check scenario files; exit 0, or 2 with one line per bad file."""
+    from scenarios import ScenarioError, load_scenario
+
     bad = 0
     for name in files:
         try:
-            load_scenario(name)
+            scenario = load_scenario(name)
         except ScenarioError as exc:
             bad += 1
             err.print(str(exc), highlight=False, soft_wrap=True)
@@ -359,6 +428,8 @@ def scenario_validate(files: Annotated[list[str], typer.Argument(help="scenario 
                 f"{name}: cannot be loaded: {type(exc).__name__}: {exc}".replace("\n", " "), highlight=False, soft_wrap=True
             )
         else:
+            for line in scenario.notes:
+                note(line)
             console.print(f"{name}: ok", highlight=False)
     if bad:
         raise typer.Exit(2)
@@ -371,9 +442,14 @@ def scenario_render(
     no_route: Annotated[bool, typer.Option("--no-route", help="leave out the mapping route")] = False,
 ) -> None:
     """Draw the ground-truth map, obstacles, mapping route and trials."""
+    writable_file(output, "-o", IMAGE_SUFFIXES)
     from scenarios.render import render
 
-    path = render(_load(scenario), output, show_route=not no_route)
+    loaded = _load(scenario)
+    try:
+        path = render(loaded, output, show_route=not no_route)
+    except OSError as exc:
+        fail(f"-o {output}: cannot be written: {exc.strerror or exc}")
     console.print(f"wrote {path}")
 
 
@@ -386,12 +462,37 @@ def report(run_dirs: Annotated[list[Path], typer.Argument(help="results folders 
     """Tables of one or more runs (Markdown and CSV under <run>/report/), printed as a table."""
     from reports.tables import write_tables
 
+    for run_dir in run_dirs:  # every folder is checked before any table is written
+        _check_summary(run_dir)
+        writable_dir(run_dir / "report", "report")
     for run_dir in run_dirs:
-        if not (run_dir / "summary.json").is_file():
-            fail(f"{run_dir}: not a finished run folder (summary.json missing)")
-        out = write_tables(run_dir)
+        try:
+            out = write_tables(run_dir)
+        except OSError as exc:
+            fail(f"{run_dir / 'report'}: cannot be written: {exc.strerror or exc}")
         print_summary(run_dir)
         console.print(f"tables: {out / 'table.md'}, {out / 'table.csv'}")
+
+
+def _check_summary(run_dir: Path) -> None:
+    """A finished run's summary.json that the tables can read, or one line saying why not."""
+    from reports.tables import rows
+
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        fail(f"{run_dir}: not a finished run folder (summary.json missing)")
+    try:
+        summary = json.loads(path.read_bytes())
+    except OSError as exc:
+        fail(f"{path}: cannot be read: {exc.strerror or exc}")
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        fail(f"{path}: not valid JSON ({exc})")
+    if not isinstance(summary, dict) or not all(isinstance(s, dict) for s in summary.values()):
+        fail(f"{path}: not a run summary (expected a JSON object of one object per system)")
+    try:
+        rows(run_dir)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:  # a summary edited by hand
+        fail(f"{path}: unexpected content ({type(exc).__name__}: {exc})")
 
 
 @app.command("plot-graph")
@@ -400,15 +501,21 @@ def plot_graph_command(
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write")],
 ) -> None:
     """Draw NavTopo's graph (locations, their walls, edges) over the ground-truth map."""
-    from navtopo.graph import GraphFormatError
-    from reports.graph_plot import plot_graph
-
     if not (run_dir / "maps" / "navtopo").is_dir():
         fail(f"{run_dir}: no NavTopo map (maps/navtopo missing)")
+    writable_file(output, "-o", IMAGE_SUFFIXES)
+    from navtopo.graph import GraphFormatError
+    from reports.graph_plot import plot_graph
+    from scenarios import ScenarioError
+
     try:
         console.print(f"wrote {plot_graph(run_dir, output)}")
-    except GraphFormatError as exc:
+    except (GraphFormatError, ScenarioError) as exc:
         fail(str(exc))
+    except OSError as exc:
+        fail(f"-o {output}: cannot be written: {exc.strerror or exc}")
+    except (ValueError, KeyError, TypeError) as exc:  # a run folder edited by hand
+        fail(f"{run_dir}: cannot be drawn: {type(exc).__name__}: {exc}")
 
 
 @app.command()

@@ -7,6 +7,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from typer.testing import CliRunner
+
+from runners.cli import app
 from scenarios import ScenarioError, load_scenario
 from scenarios.schema import MAX_RAYS_PER_SCAN
 
@@ -44,6 +47,17 @@ def refused(path: Path) -> str:
     message = str(info.value)
     assert "\n" not in message and message.startswith(f"{path}: "), message
     return message
+
+
+def one_line_error(result, code: int = 2) -> str:
+    """The CLI refused with one `error:` line and no traceback; returns that line."""
+    assert result.exit_code == code, (result.exit_code, result.output, result.exception)
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("error:")]
+    assert len(errors) == 1, result.output
+    assert "Traceback" not in result.output
+    return errors[0]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -132,6 +146,8 @@ def test_a_route_leg_through_a_wall_is_reported_as_rerouted(tmp_path):
     scenario = load_scenario(path)
     assert len(scenario.notes) == 1 and "mapping_route.waypoints.1" in scenario.notes[0]
     assert "8.0 m straight" in scenario.notes[0] and "re-routed" in scenario.notes[0]
+    result = CliRunner().invoke(app, ["scenario", "validate", str(path)])
+    assert result.exit_code == 0 and "re-routed" in result.output
 
 
 # ---------------------------------------------------------------------------------------------
@@ -157,3 +173,65 @@ def test_results_and_maps_are_written_with_the_users_umask(tmp_path, umask):
     for name in ("manifest.json", "trial-0.tum", "graph.json"):
         assert (tmp_path / "a" / name).stat().st_mode & 0o777 == 0o666 & ~umask, name
     assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["graph.json", "manifest.json", "trial-0.tum"]
+
+
+# ---------------------------------------------------------------------------------------------
+# the command line: answers at once, one line per refusal, nothing written on refusal
+
+
+def test_version_and_help_answer_without_the_heavy_modules():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from typer.testing import CliRunner\n"
+        "from runners.cli import app\n"
+        "for args in (['--help'], ['run', '--help'], ['--version']):\n"
+        "    assert CliRunner().invoke(app, args).exit_code == 0, args\n"
+        "print(CliRunner().invoke(app, ['--version']).output.strip())\n"
+        "print(sorted(m for m in ('torch', 'scipy', 'shapely', 'numba', 'pybullet', 'cv2', 'matplotlib') if m in sys.modules))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert done.returncode == 0, done.stderr
+    version, heavy = done.stdout.splitlines()
+    assert version.startswith("navtopo-bench ") and heavy == "[]"
+
+
+@pytest.mark.parametrize("target", ["blocker/out.png", "blocker", "folder", "out.txt"])
+def test_render_refuses_an_output_it_cannot_write_before_loading(tmp_path, target):
+    (tmp_path / "blocker").write_text("a file where a folder would be")
+    (tmp_path / "folder").mkdir()
+    before = sorted(tmp_path.rglob("*"))
+    result = CliRunner().invoke(app, ["scenario", "render", "tiny", "-o", str(tmp_path / target)])
+    line = one_line_error(result)
+    assert f"-o {tmp_path / target}" in line
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_plot_graph_refuses_an_output_under_a_file(tmp_path):
+    (tmp_path / "run" / "maps" / "navtopo").mkdir(parents=True)
+    (tmp_path / "blocker").write_text("")
+    result = CliRunner().invoke(app, ["plot-graph", str(tmp_path / "run"), "-o", str(tmp_path / "blocker" / "g.png")])
+    assert "is a file, not a folder" in one_line_error(result)
+
+
+@pytest.mark.parametrize(
+    ("summary", "reason"),
+    [
+        (b"{", "not valid JSON"),
+        (b"\xff\xfe", "not valid JSON"),
+        (b"[]", "not a run summary"),
+        (b'{"navtopo": 3}', "not a run summary"),
+        (b'{"navtopo": {"memory": 3}}', "unexpected content"),
+    ],
+)
+def test_report_on_a_corrupt_summary_is_one_line_and_writes_no_table(tmp_path, summary, reason):
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    for run in (good, bad):
+        run.mkdir()
+    (good / "summary.json").write_text('{"oracle": {"successes": 1, "trials": 1}}')
+    (bad / "summary.json").write_bytes(summary)
+    line = one_line_error(CliRunner().invoke(app, ["report", str(good), str(bad)]))
+    assert line.startswith(f"error: {bad / 'summary.json'}: ") and reason in line
+    assert not (good / "report").exists() and not (bad / "report").exists()
