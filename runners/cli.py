@@ -559,6 +559,11 @@ def train_descriptor(
     sys.stdout.write(json.dumps(summary, indent=2, default=str) + "\n")
 
 
+RECALL_RADIUS_M = 3.0  # a retrieved scan this close to the query is a hit (retrieval.evaluate_revisits)
+MIN_SCAN_SPACING_M = 0.05
+MAX_EVAL_SCANS = 50_000
+
+
 @app.command("eval-place-recognition")
 def eval_place_recognition(
     scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")],
@@ -568,13 +573,34 @@ def eval_place_recognition(
     min_gap: Annotated[float, typer.Option(help="query only scans at least this far back along the route (m)")] = 30.0,
 ) -> None:
     """Recall@1/@5 (3 m) of each descriptor: every route scan queried against earlier passes."""
+    import math
+
+    names = [d.strip() for d in descriptors.split(",") if d.strip()]
+    if not names:
+        fail("--descriptors: give at least one descriptor")
+    if not (math.isfinite(spacing) and spacing >= MIN_SCAN_SPACING_M):
+        fail(f"--spacing {spacing}: a scan every at least {MIN_SCAN_SPACING_M} m of the route is needed")
+    if not (math.isfinite(min_gap) and min_gap > RECALL_RADIUS_M):
+        fail(
+            f"--min-gap {min_gap}: must be more than the {RECALL_RADIUS_M} m recall radius, "
+            "else the scans just behind a query match it trivially"
+        )
     import torch
 
+    from navtopo.place_recognition import available_descriptors
     from runners.place_recognition_data import evaluate_scenario
 
+    unknown = [d for d in names if d not in available_descriptors()]
+    if unknown:
+        fail(f"--descriptors: unknown descriptor(s) {', '.join(unknown)} (available: {', '.join(available_descriptors())})")
+    loaded = _load(scenario, with_trials=False)
+    scans = loaded.route_length_m / spacing
+    if scans > MAX_EVAL_SCANS:
+        fail(f"--spacing {spacing}: {scans:,.0f} scans on the {loaded.route_length_m:.0f} m route (at most {MAX_EVAL_SCANS:,})")
     torch.set_num_threads(1)
-    names = [d.strip() for d in descriptors.split(",") if d.strip()]
-    results = evaluate_scenario(_load(scenario, with_trials=False), names, spacing_m=spacing, min_gap_m=min_gap)
+    results = evaluate_scenario(loaded, names, spacing_m=spacing, min_gap_m=min_gap)
+    if all(not r.get("queries") for r in results.values() if "error" not in r):
+        note(f"no scan of {scenario} has an earlier pass ({min_gap} m or more of driving before) within {RECALL_RADIUS_M} m")
     if as_json:
         sys.stdout.write(json.dumps(results, indent=2) + "\n")
         return

@@ -235,3 +235,20 @@ def test_report_on_a_corrupt_summary_is_one_line_and_writes_no_table(tmp_path, s
     line = one_line_error(CliRunner().invoke(app, ["report", str(good), str(bad)]))
     assert line.startswith(f"error: {bad / 'summary.json'}: ") and reason in line
     assert not (good / "report").exists() and not (bad / "report").exists()
+
+
+@pytest.mark.parametrize(
+    ("flags", "reason"),
+    [
+        (["--descriptors", "nope"], "unknown descriptor(s) nope"),
+        (["--descriptors", " , "], "at least one descriptor"),
+        (["--spacing", "0"], "--spacing 0.0"),
+        (["--spacing", "-1"], "--spacing -1.0"),
+        (["--spacing", "nan"], "--spacing nan"),
+        (["--min-gap", "0"], "recall radius"),
+        (["--min-gap", "2"], "recall radius"),
+    ],
+)
+def test_eval_place_recognition_refuses_flags_that_crash_or_measure_nothing(flags, reason):
+    result = CliRunner().invoke(app, ["eval-place-recognition", "tiny", *flags])
+    assert reason in one_line_error(result)
