@@ -170,6 +170,8 @@ def run(
     unknown = [s for s in names if s not in known]
     if unknown and resume is None:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
+    if not names and resume is None:
+        fail(f"--systems {systems!r}: give at least one system (available: {', '.join(sorted(known))})")
     from runners.protocol import SETTINGS, TrialProtocol
 
     setting_list: list[str | None] = [None]
@@ -195,13 +197,18 @@ def run(
             seed_list = [int(s) for s in seeds.split(",") if s.strip()]
         except ValueError:
             fail(f"--seeds: not a list of integers: {seeds!r}")
+        if not seed_list:
+            fail(f"--seeds {seeds!r}: give at least one seed")
+    for flag, value in [("--seed", seed)] + [("--seeds", s) for s in seed_list]:
+        if value is not None and value < 0:
+            fail(f"{flag} {value}: a seed is a non-negative integer")
     scenarios = list(scenarios or [])
     if resume is not None:
         if not (resume / "manifest.json").is_file():
             fail(f"{resume}: not a run folder (manifest.json missing)")
         if len(seed_list) > 1 or len(scenarios) > 1:
             fail("--resume finishes one run folder: give at most its scenario and no --seeds")
-        manifest = json.loads((resume / "manifest.json").read_text())
+        manifest = _read_manifest(resume, known)
         stored = manifest["scenario"]
         if scenarios and scenarios[0] not in (stored["name"], stored["file"]):
             fail(f"{resume}: holds a run of {stored['name']!r}, not {scenarios[0]!r}")
@@ -235,6 +242,12 @@ def run(
         fail(f"{out}: already holds a run; use --resume {out} to finish it, or another --out")
     if out is not None and (len(scenarios) > 1 or len(seed_list) > 1 or len(setting_list) > 1):
         fail("--out takes one scenario, one seed and one setting; leave it out to get a folder per run")
+    if out is not None:
+        if out.exists() and not out.is_dir():
+            fail(f"--out {out}: is a file, not a folder")
+        writable_dir(out, "--out")
+    else:
+        writable_dir(results, "--results")
     overrides = _read_overrides(config_file, names) if config_file is not None else None
     loaded = []
     for name in scenarios:
@@ -273,29 +286,63 @@ def run(
                 _run_one(scenario, options, execute)
 
 
+def _read_manifest(run_dir: Path, known: list[str]) -> dict:
+    """The manifest of a run folder to resume, with the keys a resume reads, or one line why not."""
+    path = run_dir / "manifest.json"
+    try:
+        manifest = json.loads(path.read_bytes())
+    except OSError as exc:
+        fail(f"--resume {path}: cannot be read: {exc.strerror or exc}")
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        fail(f"--resume {path}: not valid JSON ({exc}); this folder cannot be resumed")
+    problem = None
+    if not isinstance(manifest, dict):
+        problem = "not a JSON object"
+    elif not (isinstance(manifest.get("scenario"), dict) and isinstance(manifest["scenario"].get("file"), str)):
+        problem = "scenario.file missing"
+    elif not (isinstance(manifest.get("systems"), list) and manifest["systems"]):
+        problem = "systems missing"
+    elif unknown := [s for s in manifest["systems"] if s not in known]:
+        problem = f"systems: unknown system(s) {', '.join(map(str, unknown))}"
+    elif not isinstance(manifest.get("seed"), int) or isinstance(manifest["seed"], bool):
+        problem = "seed missing or not an integer"
+    elif not isinstance(manifest.get("config"), dict) or not all(
+        isinstance(manifest["config"].get(s), dict) for s in manifest["systems"]
+    ):
+        problem = "config of a system missing"
+    elif not isinstance(manifest.get("trial_count", 0), int | None):
+        problem = "trial_count not an integer"
+    if problem is not None:
+        fail(f"--resume {path}: {problem}; this folder cannot be resumed")
+    manifest["scenario"].setdefault("name", manifest["scenario"]["file"])
+    return manifest
+
+
 def _read_overrides(path: Path, names: list[str]) -> dict:
-    import yaml
     from pydantic import ValidationError
 
     from runners.run import resolved_configs
+    from scenarios import ScenarioError
+    from scenarios.schema import read_yaml
 
     try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        fail(f"{path}: no such file")
-    except yaml.YAMLError as exc:
-        fail(f"{path}: not valid YAML ({exc})".replace("\n", " "))
+        data = read_yaml(path)
+    except ScenarioError as exc:
+        fail(f"--config {exc}")
     if not isinstance(data, dict):
-        fail(f"{path}: expected a mapping of system names to settings")
-    for name in data:
+        fail(f"--config {path}: expected a mapping of system names to settings")
+    for name, value in data.items():
         if name not in names:
-            fail(f"{path}: {name}: not one of the systems of this run ({', '.join(names)})")
-    try:
-        resolved_configs(names, data)
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        key = ".".join(str(p) for p in first["loc"])
-        fail(f"{path}: {key}: {first['msg']}")
+            fail(f"--config {path}: {name}: not one of the systems of this run ({', '.join(names)})")
+        if value is not None and not isinstance(value, dict):
+            fail(f"--config {path}: {name}: expected a mapping of settings")
+    for name in data:
+        try:
+            resolved_configs([name], data)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            key = ".".join(str(p) for p in first["loc"])
+            fail(f"--config {path}: {name}.{key}: {first['msg']}")
     return data
 
 

@@ -252,3 +252,71 @@ def test_report_on_a_corrupt_summary_is_one_line_and_writes_no_table(tmp_path, s
 def test_eval_place_recognition_refuses_flags_that_crash_or_measure_nothing(flags, reason):
     result = CliRunner().invoke(app, ["eval-place-recognition", "tiny", *flags])
     assert reason in one_line_error(result)
+
+
+def run_refused(tmp_path, *args: str) -> str:
+    """`run` refused with one line, and nothing created: no results folder, no `latest`."""
+    results = tmp_path / "results"
+    result = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle,navtopo", "--results", str(results), *args])
+    line = one_line_error(result)
+    assert not results.exists(), sorted(results.rglob("*"))
+    return line
+
+
+def test_run_with_a_config_that_is_a_folder_or_bad_yaml_is_one_line(tmp_path):
+    (tmp_path / "folder").mkdir()
+    assert "is a folder" in run_refused(tmp_path, "--config", str(tmp_path / "folder"))
+    (tmp_path / "dup.yaml").write_text("oracle: {}\noracle: {}\n")
+    assert "line 2: duplicate key 'oracle'" in run_refused(tmp_path, "--config", str(tmp_path / "dup.yaml"))
+    (tmp_path / "bin.yaml").write_bytes(b"\x00\x01\x02")
+    assert "not a text file" in run_refused(tmp_path, "--config", str(tmp_path / "bin.yaml"))
+    assert "no such file" in run_refused(tmp_path, "--config", str(tmp_path / "missing.yaml"))
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (["--seed", "-1"], "--seed -1: a seed is a non-negative integer"),
+        (["--seeds", "3,-2"], "--seeds -2"),
+        (["--seeds", ","], "at least one seed"),
+        (["--systems", ""], "at least one system"),
+        (["--systems", " , "], "at least one system"),
+    ],
+)
+def test_run_refuses_bad_flags_before_creating_anything(tmp_path, args, reason):
+    results = tmp_path / "results"
+    line = one_line_error(CliRunner().invoke(app, ["run", "tiny", "--results", str(results), *args]))
+    assert reason in line and not results.exists()
+
+
+def test_a_config_naming_an_unknown_descriptor_is_refused_before_the_run_folder(tmp_path):
+    config = tmp_path / "c.yaml"
+    config.write_text("navtopo: {descriptor: nope}\n")
+    line = run_refused(tmp_path, "--config", str(config))
+    assert f"--config {config}: navtopo.descriptor: " in line and "unknown place descriptor 'nope'" in line
+
+
+def test_run_out_under_a_file_is_refused(tmp_path):
+    (tmp_path / "blocker").write_text("")
+    assert "is a file, not a folder" in run_refused(tmp_path, "--out", str(tmp_path / "blocker" / "run"))
+    assert "is a file, not a folder" in run_refused(tmp_path, "--out", str(tmp_path / "blocker"))
+
+
+@pytest.mark.parametrize(
+    ("manifest", "reason"),
+    [
+        (b"{", "not valid JSON"),
+        (b"{}", "scenario.file missing"),
+        (b"[]", "not a JSON object"),
+        (b'{"scenario": {"file": "tiny"}, "systems": ["nope"], "seed": 1, "config": {}}', "unknown system(s) nope"),
+        (b'{"scenario": {"file": "tiny"}, "systems": ["oracle"], "seed": "1", "config": {}}', "seed"),
+        (b'{"scenario": {"file": "tiny"}, "systems": ["oracle"], "seed": 1, "config": {}}', "config of a system"),
+    ],
+)
+def test_resume_of_a_corrupt_manifest_is_one_line_and_touches_nothing(tmp_path, manifest, reason):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "manifest.json").write_bytes(manifest)
+    line = one_line_error(CliRunner().invoke(app, ["run", "--resume", str(run)]))
+    assert line.startswith(f"error: --resume {run / 'manifest.json'}: ") and reason in line and "cannot be resumed" in line
+    assert sorted(p.name for p in run.iterdir()) == ["manifest.json"]
