@@ -320,3 +320,92 @@ def test_resume_of_a_corrupt_manifest_is_one_line_and_touches_nothing(tmp_path, 
     line = one_line_error(CliRunner().invoke(app, ["run", "--resume", str(run)]))
     assert line.startswith(f"error: --resume {run / 'manifest.json'}: ") and reason in line and "cannot be resumed" in line
     assert sorted(p.name for p in run.iterdir()) == ["manifest.json"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Ctrl-C
+
+
+def wait_for(predicate, timeout: float) -> bool:
+    import time
+
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    (tmp_path / "slow_job.py").write_text(
+        "import time\nfrom pathlib import Path\n\n\ndef job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n"
+    )
+    driver = (
+        "import sys\n"
+        f"sys.path.insert(0, {str(tmp_path)!r})\n"
+        "import slow_job\n"
+        "from runners.executors import run_jobs\n"
+        f"markers = [{str(tmp_path / 'a')!r}, {str(tmp_path / 'b')!r}]\n"
+        "try:\n"
+        "    for _ in run_jobs(slow_job.job, markers, workers=1):\n"
+        "        pass\n"
+        "except KeyboardInterrupt:\n"
+        "    sys.exit(130)\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", driver], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    try:
+        assert wait_for(lambda: (tmp_path / "a").exists(), 60), "the first job never started"
+        process.send_signal(signal.SIGINT)
+        started = time.monotonic()
+        assert process.wait(timeout=20) == 130
+        assert time.monotonic() - started < 10
+    finally:
+        process.kill()
+    assert "Traceback" not in process.stderr.read()
+    time.sleep(1.0)
+    assert not (tmp_path / "b").exists(), "a queued job ran after Ctrl-C"
+
+
+def test_ctrl_c_during_trials_exits_130_and_the_run_resumes_with_nothing_lost(tmp_path):
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--out", str(out)]
+    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    trials = out / "trials.jsonl"
+    try:
+        assert wait_for(lambda: trials.is_file() and trials.read_text().count("\n") >= 1, 400), "no trial finished"
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            started = time.monotonic()
+            assert process.wait(timeout=30) == 130
+            assert time.monotonic() - started < 10
+            stderr = process.stderr.read()
+            assert "Traceback" not in stderr and f"--resume {out}" in one_line_error_text(stderr)
+            assert not (out / "summary.json").exists()
+    finally:
+        process.kill()
+    before = [json.loads(line) for line in trials.read_text().splitlines() if line.strip()]
+
+    result = CliRunner().invoke(app, ["run", "--resume", str(out)])
+    assert result.exit_code == 0, result.output
+    records = [json.loads(line) for line in trials.read_text().splitlines() if line.strip()]
+    assert sorted(r["trial"] for r in records) == [0, 1, 2]  # none lost, none twice
+    assert records[: len(before)] == before  # the trials finished before Ctrl-C are kept as they were
+    assert json.loads((out / "summary.json").read_text())["oracle"]["trials"] == 3
+
+
+def one_line_error_text(stderr: str) -> str:
+    errors = [line for line in stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, stderr
+    return errors[0]
