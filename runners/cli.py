@@ -402,6 +402,9 @@ def _run_one(scenario, options, execute) -> None:
                 log.write_text(traceback.format_exc())
                 message += f" (traceback in {log})"
             fail(message, code=1)
+    if run_dir.failed_stages:
+        failures = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
+        fail(f"navigation stage failed, no trial counted ({failures}); after fixing it: --resume {run_dir.root}", code=1)
     print_summary(run_dir.root)
     console.print(f"results: [bold]{run_dir.root}[/]")
     if run_dir.incomplete:

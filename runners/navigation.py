@@ -37,6 +37,11 @@ from runners.systems import Status, get_system
 from scenarios import Scenario, load_scenario
 
 
+class MapLoadError(RuntimeError):
+    """A saved map its system cannot load (truncated, edited, another format): the navigation stage
+    failed before any trial, which is not a navigation failure of the system."""
+
+
 @dataclass
 class TrialJob:
     scenario: str  # path of the scenario file
@@ -157,7 +162,11 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
         context = context_for(entry, scenario, sim, protocol)
         anchors = Anchors.from_rows(job.anchors)
         t0 = time.perf_counter()
-        system = entry.load(Path(job.map_dir), config, context)
+        try:
+            system = entry.load(Path(job.map_dir), config, context)
+        except Exception as exc:  # noqa: BLE001 - whatever the format's reader raises
+            message = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+            raise MapLoadError(f"the map in {job.map_dir} cannot be loaded: {message}") from None
         map_load_ms = (time.perf_counter() - t0) * 1e3
         first = FirstPlan()
         for index in job.trials:

@@ -58,6 +58,7 @@ class RunDir:
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.incomplete: list[tuple[str, int]] = []  # (system, trial) left unrun by a dead worker
+        self.failed_stages: dict[str, str] = {}  # system -> why its navigation stage could not start
 
     @property
     def manifest_path(self) -> Path:

@@ -409,3 +409,30 @@ def one_line_error_text(stderr: str) -> str:
     errors = [line for line in stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1, stderr
     return errors[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# runs
+
+
+def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_path):
+    import json
+    import shutil
+
+    first, second = tmp_path / "first", tmp_path / "second"
+    result = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--trials", "0", "--out", str(first)])
+    assert result.exit_code == 0, result.output
+    (first / "maps" / "oracle" / "oracle.json").unlink()  # a damaged map folder
+    result = CliRunner().invoke(
+        app, ["run", "tiny", "--systems", "oracle", "--trials", "2", "--maps-from", str(first), "--out", str(second)]
+    )
+    line = one_line_error(result, code=1)
+    assert "navigation stage failed" in line and "oracle: the map in " in line and f"--resume {second}" in line
+    assert not (second / "trials.jsonl").exists() or not (second / "trials.jsonl").read_text().strip()
+    assert not (second / "summary.json").exists()  # unfinished: `report` refuses it, --resume retries
+
+    shutil.copytree(first / "maps" / "oracle", second / "maps" / "oracle", dirs_exist_ok=True)
+    (second / "maps" / "oracle" / "oracle.json").write_text("{}")  # repaired
+    result = CliRunner().invoke(app, ["run", "--resume", str(second)])
+    assert result.exit_code == 0, result.output
+    assert json.loads((second / "summary.json").read_text())["oracle"]["trials"] == 2
