@@ -595,17 +595,29 @@ def train_descriptor(
     worlds: Annotated[int, typer.Option(help="generated training worlds (never the bundled scenarios)", min=1)] = 9,
     threads: Annotated[int | None, typer.Option(help="torch threads (1 is fastest on a shared 2-core machine)")] = 1,
     data_dir: Annotated[Path, typer.Option(help="cache of generated scans")] = Path("data/place_recognition"),
-    out: Annotated[Path | None, typer.Option(help="where the weights go (default: the package's shipped weights)")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="a folder for the weights (default: a new weights/<descriptor>-<time>; the package's shipped "
+            "weights are never overwritten: copy new ones there by hand to ship them)"
+        ),
+    ] = None,
 ) -> None:
     """Train a place-recognition descriptor on scans of generated corridor worlds."""
-    from navtopo.place_recognition import WEIGHTS_DIR, available_descriptors
+    from navtopo.place_recognition import available_descriptors
+    from runners.place_recognition_data import default_training_out, existing_weights
     from runners.place_recognition_data import train_descriptor as train
 
     if descriptor not in available_descriptors() or descriptor == "scan_context":
         fail(f"--descriptor: {descriptor!r} is not a learned descriptor (minkloc3d, polar_bev)")
-    summary = train(
-        descriptor, minutes, worlds, threads, data_dir, out or WEIGHTS_DIR, say=lambda m: console.print(m, highlight=False)
-    )
+    out = out or default_training_out(descriptor)
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out}: is a file, not a folder")
+    if found := existing_weights(out, descriptor):
+        fail(f"--out {out}: already holds {found[0].name}; train into another folder (it is never overwritten)")
+    writable_dir(out, "--out")
+    writable_dir(data_dir, "--data-dir")
+    summary = train(descriptor, minutes, worlds, threads, data_dir, out, say=lambda m: console.print(m, highlight=False))
     sys.stdout.write(json.dumps(summary, indent=2, default=str) + "\n")
 
 

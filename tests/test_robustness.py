@@ -344,7 +344,8 @@ def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
     import time
 
     (tmp_path / "slow_job.py").write_text(
-        "import time\nfrom pathlib import Path\n\n\ndef job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n"
+        "import time\nfrom pathlib import Path\n\n\n"
+        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n"
     )
     driver = (
         "import sys\n"
@@ -436,3 +437,18 @@ def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_pat
     result = CliRunner().invoke(app, ["run", "--resume", str(second)])
     assert result.exit_code == 0, result.output
     assert json.loads((second / "summary.json").read_text())["oracle"]["trials"] == 2
+
+
+def test_training_never_overwrites_weights_and_defaults_to_a_new_folder(tmp_path):
+    from navtopo.place_recognition import WEIGHTS_DIR
+    from runners.place_recognition_data import default_training_out
+
+    shipped = WEIGHTS_DIR / "minkloc3d.pt"
+    stamp = shipped.stat().st_mtime_ns
+    line = one_line_error(CliRunner().invoke(app, ["train-descriptor", "--out", str(WEIGHTS_DIR), "--data-dir", str(tmp_path)]))
+    assert "already holds minkloc3d.pt" in line and shipped.stat().st_mtime_ns == stamp
+    default = default_training_out("minkloc3d")
+    assert not default.is_absolute() and default.parts[0] == "weights" and default.name.startswith("minkloc3d-")
+    (tmp_path / "file").write_text("")
+    assert "is a file" in one_line_error(CliRunner().invoke(app, ["train-descriptor", "--out", str(tmp_path / "file")]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
