@@ -31,7 +31,7 @@ from navtopo import grid_search
 from runners.mapping import context_for, disk_report
 from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, judge, timeout_s, trajectory_length, trial_record
 from runners.protocol import TrialProtocol, apply_setting
-from runners.results import RunDir, write_json, write_tum
+from runners.results import MAP_FRAME_FILE, RunDir, write_json, write_map_frame, write_tum
 from runners.sim import TRIAL_STREAM, Simulator
 from runners.systems import Status, get_system
 from scenarios import Scenario, load_scenario
@@ -178,7 +178,9 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
             if run is not None:
                 write_tum(run.trajectory_path(job.system, index), rows)
                 if estimate is not None and len(estimate):
-                    write_tum(run.trajectory_path(job.system, index, estimate=True), estimate)
+                    estimate_path = run.trajectory_path(job.system, index, estimate=True)
+                    write_tum(estimate_path, estimate)
+                    write_map_frame(estimate_path.with_name(MAP_FRAME_FILE), scenario.route_start)
                 run.append_trial(record)
         stats = system.stats()
         memory = {

@@ -52,6 +52,33 @@ def write_tum(path: Path, rows: NDArray) -> None:
     atomic_write(path, buffer.getvalue())
 
 
+MAP_FRAME_FILE = "map_frame.json"
+
+
+def write_map_frame(path: Path, world_from_map: NDArray) -> None:
+    """Where the map frame of the ``*.est.tum`` files lies in the scenario frame of the ``*.tum``
+    files: the pose [x, y, yaw] of the mapping route's start, in evo's transform format
+    (``evo_traj tum trial-0.est.tum --transform_left map_frame.json``), so the error is measured
+    without an alignment that would hide drift."""
+    x, y, yaw = (float(v) for v in np.asarray(world_from_map, dtype=np.float64))
+    qx, qy, qz, qw = (float(v) for v in quaternion_z(np.array(yaw)))
+    write_json(
+        path,
+        {
+            "parent_frame": "scenario",
+            "child_frame": "map",
+            "x": x,
+            "y": y,
+            "z": 0.0,
+            "qx": qx,
+            "qy": qy,
+            "qz": qz,
+            "qw": qw,
+            "yaw_deg": float(np.degrees(yaw)),
+        },
+    )
+
+
 class RunDir:
     """``results/<scenario>/<run-id>/`` and the files in it."""
 

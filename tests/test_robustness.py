@@ -452,3 +452,23 @@ def test_training_never_overwrites_weights_and_defaults_to_a_new_folder(tmp_path
     (tmp_path / "file").write_text("")
     assert "is a file" in one_line_error(CliRunner().invoke(app, ["train-descriptor", "--out", str(tmp_path / "file")]))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_the_map_frame_beside_the_estimates_takes_them_into_the_scenario_frame(tmp_path):
+    import json
+
+    import numpy as np
+
+    from navtopo import geometry as se2
+    from runners.results import write_map_frame
+
+    world_from_map = np.array([3.0, -2.0, np.radians(40.0)])
+    write_map_frame(tmp_path / "map_frame.json", world_from_map)
+    t = json.loads((tmp_path / "map_frame.json").read_text())
+    assert {"x", "y", "z", "qx", "qy", "qz", "qw"} <= set(t)  # evo's transform keys
+    yaw = 2 * np.arctan2(t["qz"], t["qw"])
+    rotation = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    estimate_in_map = np.array([5.0, 1.0, 0.3])
+    in_scenario = rotation @ estimate_in_map[:2] + [t["x"], t["y"]]
+    assert in_scenario == pytest.approx(se2.compose(world_from_map, estimate_in_map)[:2])
+    assert t["yaw_deg"] == pytest.approx(40.0)
