@@ -258,6 +258,8 @@ def run(
 
         if len(loaded) > 1 or len(seed_list) > 1 or len(setting_list) > 1:
             fail("--maps-from serves one scenario, one seed and one setting")
+        if trials == 0:
+            fail("--trials 0 with --maps-from would run nothing: the maps are there already")
         scenario = apply_setting(loaded[0], setting_list[0])
         try:
             check_maps_from(
@@ -353,25 +355,29 @@ def _run_one(scenario, options, execute) -> None:
 
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
     with Progress(*columns, console=console, transient=False) as progress:
-        mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
+        mapping_task = None  # shown only when a system maps (a resume may find every map done)
         trial_task = None
         run_folder: list[Path] = []
 
         logged_tenths = [-1]
 
         def on_mapping(travelled: float, total: float) -> None:
-            progress.update(mapping_task, completed=min(round(travelled), round(total)))
+            if mapping_task is not None:
+                progress.update(mapping_task, completed=min(round(travelled), round(total)))
             tenth = int(10 * travelled / max(total, 1e-9))
             if not console.is_terminal and tenth > logged_tenths[0]:  # logs and CI: a line every 10 %
                 logged_tenths[0] = tenth
                 progress.console.print(f"  mapping {scenario.name}: {travelled:.0f} / {total:.0f} m", highlight=False)
 
         def on_stage(stage: str, value) -> None:
-            nonlocal trial_task
+            nonlocal mapping_task, trial_task
             if stage == "run_dir":
                 run_folder.append(value)
+            elif stage == "mapping":
+                mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
             elif stage == "navigation":
-                progress.update(mapping_task, completed=round(scenario.route_length_m))
+                if mapping_task is not None:
+                    progress.update(mapping_task, completed=round(scenario.route_length_m))
                 trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=value)
 
         def on_trial(record: dict) -> None:
@@ -405,7 +411,12 @@ def _run_one(scenario, options, execute) -> None:
     if run_dir.failed_stages:
         failures = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
         fail(f"navigation stage failed, no trial counted ({failures}); after fixing it: --resume {run_dir.root}", code=1)
-    print_summary(run_dir.root)
+    from runners.results import read_json
+
+    if read_json(run_dir.manifest_path).get("trial_count") == 0:
+        console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+    else:
+        print_summary(run_dir.root)
     console.print(f"results: [bold]{run_dir.root}[/]")
     if run_dir.incomplete:
         fail(f"{len(run_dir.incomplete)} trial(s) left unrun after a worker died; finish with --resume {run_dir.root}", code=1)

@@ -423,6 +423,8 @@ def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_pat
     first, second = tmp_path / "first", tmp_path / "second"
     result = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--trials", "0", "--out", str(first)])
     assert result.exit_code == 0, result.output
+    assert f"no trials run (--trials 0): navigate these maps with --maps-from {first}" in result.output
+    assert "success" not in result.output  # no empty table
     (first / "maps" / "oracle" / "oracle.json").unlink()  # a damaged map folder
     result = CliRunner().invoke(
         app, ["run", "tiny", "--systems", "oracle", "--trials", "2", "--maps-from", str(first), "--out", str(second)]
@@ -436,6 +438,7 @@ def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_pat
     (second / "maps" / "oracle" / "oracle.json").write_text("{}")  # repaired
     result = CliRunner().invoke(app, ["run", "--resume", str(second)])
     assert result.exit_code == 0, result.output
+    assert "mapping (m)" not in result.output  # every map is there: no mapping bar stuck at 0
     assert json.loads((second / "summary.json").read_text())["oracle"]["trials"] == 2
 
 
@@ -472,3 +475,8 @@ def test_the_map_frame_beside_the_estimates_takes_them_into_the_scenario_frame(t
     in_scenario = rotation @ estimate_in_map[:2] + [t["x"], t["y"]]
     assert in_scenario == pytest.approx(se2.compose(world_from_map, estimate_in_map)[:2])
     assert t["yaw_deg"] == pytest.approx(40.0)
+
+
+def test_trials_0_with_maps_from_would_run_nothing_and_is_refused(tmp_path):
+    assert "would run nothing" in run_refused(tmp_path, "--trials", "0", "--maps-from", str(tmp_path / "earlier"))
+
