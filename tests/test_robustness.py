@@ -480,3 +480,10 @@ def test_the_map_frame_beside_the_estimates_takes_them_into_the_scenario_frame(t
 def test_trials_0_with_maps_from_would_run_nothing_and_is_refused(tmp_path):
     assert "would run nothing" in run_refused(tmp_path, "--trials", "0", "--maps-from", str(tmp_path / "earlier"))
 
+
+def test_pybullet_prints_no_banner():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", "import runners.sim"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0 and done.stdout == "" and done.stderr == "", done.stderr
