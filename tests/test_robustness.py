@@ -487,3 +487,20 @@ def test_pybullet_prints_no_banner():
 
     done = subprocess.run([sys.executable, "-c", "import runners.sim"], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert done.returncode == 0 and done.stdout == "" and done.stderr == "", done.stderr
+
+
+@pytest.mark.parametrize("name", ["metric_grid", "navtopo"])
+def test_scans_with_no_returns_are_mapped_without_error(name):
+    """Open space beyond the lidar's range gives scans with no returns: every system maps on."""
+    import numpy as np
+
+    from navtopo.types import Observation
+    from runners.systems import SystemContext, get_system
+
+    tiny = load_scenario(TINY, with_trials=False)
+    entry = get_system(name)
+    system = entry.create(entry.config_model(), SystemContext(robot=tiny.spec.robot, sensor=tiny.spec.sensor))
+    for i in range(12):
+        system.observe(Observation(stamp=0.2 * i, points=np.zeros((0, 3), np.float32), odom=np.array([0.2 * i, 0.0, 0.0])))
+    system.finish_mapping()
+    assert system.mapping_stats()["map_bytes"] >= 0
