@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Annotated, NoReturn
@@ -172,6 +173,8 @@ def run(
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
     if not names and resume is None:
         fail(f"--systems {systems!r}: give at least one system (available: {', '.join(sorted(known))})")
+    if len(set(names)) < len(names) and resume is None:
+        fail(f"--systems {systems!r}: a system is named twice")
     from runners.protocol import SETTINGS, TrialProtocol
 
     setting_list: list[str | None] = [None]
@@ -182,10 +185,12 @@ def run(
             fail(f"--setting: unknown setting {', '.join(bad) or repr(setting)} (choose from {', '.join(SETTINGS)})")
     try:
         error_xy, error_yaw = (float(v) for v in initial_pose_error.split(","))
-        if not (error_xy >= 0 and error_yaw >= 0):
+        if not (0 <= error_xy < math.inf and 0 <= error_yaw < math.inf):
             raise ValueError
     except ValueError:
         fail(f"--initial-pose-error: expected two non-negative numbers XY_M,YAW_DEG, got {initial_pose_error!r}")
+    if not math.isfinite(stop_tolerance):
+        fail(f"--stop-tolerance {stop_tolerance}: not a finite number of metres")
     if goals not in ("map", "native"):
         fail(f"--goals: {goals!r} is not map or native")
     protocol = TrialProtocol(
@@ -646,8 +651,6 @@ def eval_place_recognition(
     min_gap: Annotated[float, typer.Option(help="query only scans at least this far back along the route (m)")] = 30.0,
 ) -> None:
     """Recall@1/@5 (3 m) of each descriptor: every route scan queried against earlier passes."""
-    import math
-
     names = [d.strip() for d in descriptors.split(",") if d.strip()]
     if not names:
         fail("--descriptors: give at least one descriptor")

@@ -281,6 +281,7 @@ def test_run_with_a_config_that_is_a_folder_or_bad_yaml_is_one_line(tmp_path):
         (["--seeds", ","], "at least one seed"),
         (["--systems", ""], "at least one system"),
         (["--systems", " , "], "at least one system"),
+        (["--systems", "oracle,oracle"], "named twice"),
     ],
 )
 def test_run_refuses_bad_flags_before_creating_anything(tmp_path, args, reason):
