@@ -688,9 +688,23 @@ def eval_place_recognition(
     console.print(table)
 
 
-def main() -> None:
-    app()
+def main() -> int:
+    """The `navtopo-bench` entry point: a usage error (a flag's value or type, an unknown option
+    or command) is one `error:` line too, like every other refusal, instead of typer's panel."""
+    try:
+        code = app(standalone_mode=False)
+    except Exception as exc:
+        # click's ClickException (typer vendors click in some versions: recognised by its interface)
+        if not (hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int)):
+            raise
+        if not exc.format_message():  # no arguments at all: the answer is the help, as typer shows it
+            app()
+        context = getattr(exc, "ctx", None)
+        hint = f" (see `{context.command_path} --help`)" if context is not None else ""
+        err.print(f"[bold red]error:[/] {one_line(exc.format_message())}{hint}", highlight=False, soft_wrap=True)
+        return exc.exit_code
+    return code if isinstance(code, int) else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

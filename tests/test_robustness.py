@@ -505,3 +505,21 @@ def test_scans_with_no_returns_are_mapped_without_error(name):
         system.observe(Observation(stamp=0.2 * i, points=np.zeros((0, 3), np.float32), odom=np.array([0.2 * i, 0.0, 0.0])))
     system.finish_mapping()
     assert system.mapping_stats()["map_bytes"] >= 0
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (["run", "tiny", "--trials", "-1"], "Invalid value for '--trials'"),
+        (["run", "tiny", "--seed", "abc"], "Invalid value for '--seed'"),
+        (["run", "tiny", "--bogus"], "No such option: --bogus"),
+        (["nope"], "No such command 'nope'"),
+    ],
+)
+def test_usage_errors_of_the_command_are_one_line_too(args, reason):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "runners.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert len(done.stderr.splitlines()) == 1 and done.stderr.startswith("error: ") and reason in done.stderr, done.stderr
