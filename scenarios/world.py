@@ -248,16 +248,16 @@ def read_ros_map(
     image_path = (yaml_path.parent / str(meta["image"])).resolve()
     if not image_path.is_file():
         raise ScenarioError(yaml_path, "image", f"map image {image_path.name} not found next to {yaml_path.name}")
-    size = image_size(image_path)
-    if size is None:
-        raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
+    size = image_size(image_path)  # from the header, before decoding; None: a format Pillow does not read
     try:
-        check_raster_size((size[1], size[0]), resolution, f"map image {image_path.name}")
+        if size is not None:
+            check_raster_size((size[1], size[0]), resolution, f"map image {image_path.name}")
+        image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+        if image is None or image.size == 0:
+            raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
+        check_raster_size(image.shape[:2], resolution, f"map image {image_path.name}")
     except ValueError as exc:
         raise ScenarioError(yaml_path, "image", str(exc)) from None
-    image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
-    if image is None or image.size == 0:
-        raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
     if image.ndim == 3:
         image = image[..., :3].mean(axis=2)
     scale = 65535.0 if image.dtype == np.uint16 else 255.0

@@ -523,3 +523,11 @@ def test_usage_errors_of_the_command_are_one_line_too(args, reason):
     done = subprocess.run([sys.executable, "-m", "runners.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert done.returncode == 2 and done.stdout == ""
     assert len(done.stderr.splitlines()) == 1 and done.stderr.startswith("error: ") and reason in done.stderr, done.stderr
+
+
+def test_a_map_image_that_is_not_an_image_is_one_line(tmp_path):
+    (tmp_path / "m.pgm").write_bytes(b"not an image at all")
+    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(write(tmp_path, small(world={"map": {"yaml": "m.yaml"}})))
+    assert str(info.value) == f"{tmp_path / 'm.yaml'}: image: cannot decode map image m.pgm"
