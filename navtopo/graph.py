@@ -14,9 +14,8 @@ corrupt or partial folder with one ``GraphFormatError`` line naming the file, ke
 from __future__ import annotations
 
 import heapq
+import io
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from navtopo.files import atomic_write
 from navtopo.geometry import compose, inverse
 from navtopo.local_grid import CroppedGrid, decode_png, encode_png
 
@@ -177,10 +177,10 @@ class TopologicalGraph:
         directory = Path(directory)
         (directory / "grids").mkdir(parents=True, exist_ok=True)
         for i, vertex in enumerate(self.vertices):
-            _atomic_write(directory / "grids" / f"{i:06d}.png", encode_png(vertex.grid.cells) if vertex.grid.cells.size else b"")
-        with tempfile.NamedTemporaryFile(dir=directory, suffix=".npy", delete=False) as f:
-            np.save(f, self.descriptors)
-        os.replace(f.name, directory / "descriptors.npy")
+            atomic_write(directory / "grids" / f"{i:06d}.png", encode_png(vertex.grid.cells) if vertex.grid.cells.size else b"")
+        buffer = io.BytesIO()
+        np.save(buffer, self.descriptors)
+        atomic_write(directory / "descriptors.npy", buffer.getvalue())
         data = {
             "format": FORMAT,
             "descriptor_dim": self.descriptor_dim,
@@ -203,7 +203,7 @@ class TopologicalGraph:
             "edges": [[u, v, *[float(x) for x in pose]] for u, v, pose in self.edges()],
             **(extra or {}),
         }
-        _atomic_write(directory / "graph.json", (json.dumps(data, indent=1) + "\n").encode())
+        atomic_write(directory / "graph.json", (json.dumps(data, indent=1) + "\n").encode())
 
     @classmethod
     def load(cls, directory: Path) -> tuple[TopologicalGraph, dict[str, Any]]:
@@ -275,10 +275,3 @@ class TopologicalGraph:
                 raise GraphFormatError(f"{index}: edges.{j}: bad edge ({exc})") from None
         extra = {k: v for k, v in data.items() if k not in ("format", "descriptor_dim", "vertices", "edges")}
         return graph, extra
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, field_validator
 
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.graph import TopologicalGraph
@@ -31,7 +31,7 @@ from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
 from navtopo.navigation import NavigationConfig, Navigator, Startup, StartupConfig
-from navtopo.place_recognition import default_weights_path, make_descriptor
+from navtopo.place_recognition import available_descriptors, default_weights_path, make_descriptor
 from navtopo.planning import GlobalPlanner, LocalPlanner, PlanningConfig, UnionGrids
 from navtopo.scan_matching import MatchingConfig
 from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation
@@ -51,6 +51,14 @@ class NavTopoConfig(BaseModel):
     startup: StartupConfig = StartupConfig()
     navigation: NavigationConfig = NavigationConfig()
     follower: FollowerConfig = FollowerConfig()
+
+    @field_validator("descriptor")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        # refused with the config, before a run folder exists, not when mapping starts
+        if name not in available_descriptors():
+            raise ValueError(f"unknown place descriptor {name!r} (available: {', '.join(available_descriptors())})")
+        return name
 
 
 class NavTopo:

@@ -3,19 +3,19 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from scenarios import ScenarioError, bundled_names, load_scenario
+# the heavy modules (scenarios: scipy, shapely, numba; the systems: torch) are imported inside the
+# commands that need them, so that `--help` and argument errors answer at once
 
 app = typer.Typer(
-    help="navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
@@ -26,18 +26,81 @@ console = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
 
 
-def fail(message: str, code: int = 2) -> None:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+def fail(message: str, code: int = 2) -> NoReturn:
+    err.print(f"[bold red]error:[/] {one_line(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
-def _load(name: str, with_trials: bool = True):
+def note(message: str) -> None:
+    err.print(f"note: {one_line(message)}", highlight=False, soft_wrap=True)
+
+
+def one_line(message: str) -> str:
+    return " ".join(str(message).split("\n")).strip()
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib import metadata
+
+        try:
+            version = metadata.version("navtopo-bench")
+        except metadata.PackageNotFoundError:
+            version = "unknown (not installed)"
+        console.print(f"navtopo-bench {version}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool, typer.Option("--version", help="print the version and exit", callback=_version, is_eager=True)
+    ] = False,
+) -> None:
+    """navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner."""
+
+
+def _load(name: str, with_trials: bool = True, quiet: bool = False):
+    from scenarios import ScenarioError, load_scenario
+
     try:
-        return load_scenario(name, with_trials=with_trials)
+        scenario = load_scenario(name, with_trials=with_trials)
     except ScenarioError as exc:
         fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the file
-        fail(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}".replace("\n", " "))
+        fail(f"{name}: cannot be loaded: {type(exc).__name__}: {exc}")
+    if not quiet:
+        for line in scenario.notes:
+            note(line)
+    return scenario
+
+
+def writable_file(path: Path, option: str, suffixes: tuple[str, ...] | None = None) -> Path:
+    """Refuse (one line) an output file that cannot be written, before any work is done."""
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        fail(f"{option} {path}: the file name must end in {' or '.join(suffixes)}")
+    if path.is_dir():
+        fail(f"{option} {path}: is a folder; give a file name")
+    writable_dir(path.parent, option, named=path)
+    return path
+
+
+def writable_dir(path: Path, option: str, named: Path | None = None) -> Path:
+    """Refuse a folder that cannot be made or written (an ancestor that is a file, no permission);
+    the message names ``named`` (default: the folder)."""
+    import os
+
+    probe = Path(path)
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    named = path if named is None else named
+    if probe.exists() and not probe.is_dir():
+        fail(f"{option} {named}: {probe} is a file, not a folder")
+    if probe.exists() and not os.access(probe, os.W_OK | os.X_OK):
+        fail(f"{option} {named}: {probe} is not writable")
+    return path
 
 
 # ---------------------------------------------------------------------------------------------
@@ -108,6 +171,10 @@ def run(
     unknown = [s for s in names if s not in known]
     if unknown and resume is None:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
+    if not names and resume is None:
+        fail(f"--systems {systems!r}: give at least one system (available: {', '.join(sorted(known))})")
+    if len(set(names)) < len(names) and resume is None:
+        fail(f"--systems {systems!r}: a system is named twice")
     from runners.protocol import SETTINGS, TrialProtocol
 
     setting_list: list[str | None] = [None]
@@ -118,10 +185,12 @@ def run(
             fail(f"--setting: unknown setting {', '.join(bad) or repr(setting)} (choose from {', '.join(SETTINGS)})")
     try:
         error_xy, error_yaw = (float(v) for v in initial_pose_error.split(","))
-        if not (error_xy >= 0 and error_yaw >= 0):
+        if not (0 <= error_xy < math.inf and 0 <= error_yaw < math.inf):
             raise ValueError
     except ValueError:
         fail(f"--initial-pose-error: expected two non-negative numbers XY_M,YAW_DEG, got {initial_pose_error!r}")
+    if not math.isfinite(stop_tolerance):
+        fail(f"--stop-tolerance {stop_tolerance}: not a finite number of metres")
     if goals not in ("map", "native"):
         fail(f"--goals: {goals!r} is not map or native")
     protocol = TrialProtocol(
@@ -133,13 +202,18 @@ def run(
             seed_list = [int(s) for s in seeds.split(",") if s.strip()]
         except ValueError:
             fail(f"--seeds: not a list of integers: {seeds!r}")
+        if not seed_list:
+            fail(f"--seeds {seeds!r}: give at least one seed")
+    for flag, value in [("--seed", seed)] + [("--seeds", s) for s in seed_list]:
+        if value is not None and value < 0:
+            fail(f"{flag} {value}: a seed is a non-negative integer")
     scenarios = list(scenarios or [])
     if resume is not None:
         if not (resume / "manifest.json").is_file():
             fail(f"{resume}: not a run folder (manifest.json missing)")
         if len(seed_list) > 1 or len(scenarios) > 1:
             fail("--resume finishes one run folder: give at most its scenario and no --seeds")
-        manifest = json.loads((resume / "manifest.json").read_text())
+        manifest = _read_manifest(resume, known)
         stored = manifest["scenario"]
         if scenarios and scenarios[0] not in (stored["name"], stored["file"]):
             fail(f"{resume}: holds a run of {stored['name']!r}, not {scenarios[0]!r}")
@@ -173,6 +247,12 @@ def run(
         fail(f"{out}: already holds a run; use --resume {out} to finish it, or another --out")
     if out is not None and (len(scenarios) > 1 or len(seed_list) > 1 or len(setting_list) > 1):
         fail("--out takes one scenario, one seed and one setting; leave it out to get a folder per run")
+    if out is not None:
+        if out.exists() and not out.is_dir():
+            fail(f"--out {out}: is a file, not a folder")
+        writable_dir(out, "--out")
+    else:
+        writable_dir(results, "--results")
     overrides = _read_overrides(config_file, names) if config_file is not None else None
     loaded = []
     for name in scenarios:
@@ -183,6 +263,8 @@ def run(
 
         if len(loaded) > 1 or len(seed_list) > 1 or len(setting_list) > 1:
             fail("--maps-from serves one scenario, one seed and one setting")
+        if trials == 0:
+            fail("--trials 0 with --maps-from would run nothing: the maps are there already")
         scenario = apply_setting(loaded[0], setting_list[0])
         try:
             check_maps_from(
@@ -211,56 +293,96 @@ def run(
                 _run_one(scenario, options, execute)
 
 
+def _read_manifest(run_dir: Path, known: list[str]) -> dict:
+    """The manifest of a run folder to resume, with the keys a resume reads, or one line why not."""
+    path = run_dir / "manifest.json"
+    try:
+        manifest = json.loads(path.read_bytes())
+    except OSError as exc:
+        fail(f"--resume {path}: cannot be read: {exc.strerror or exc}")
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        fail(f"--resume {path}: not valid JSON ({exc}); this folder cannot be resumed")
+    problem = None
+    if not isinstance(manifest, dict):
+        problem = "not a JSON object"
+    elif not (isinstance(manifest.get("scenario"), dict) and isinstance(manifest["scenario"].get("file"), str)):
+        problem = "scenario.file missing"
+    elif not (isinstance(manifest.get("systems"), list) and manifest["systems"]):
+        problem = "systems missing"
+    elif unknown := [s for s in manifest["systems"] if s not in known]:
+        problem = f"systems: unknown system(s) {', '.join(map(str, unknown))}"
+    elif not isinstance(manifest.get("seed"), int) or isinstance(manifest["seed"], bool):
+        problem = "seed missing or not an integer"
+    elif not isinstance(manifest.get("config"), dict) or not all(
+        isinstance(manifest["config"].get(s), dict) for s in manifest["systems"]
+    ):
+        problem = "config of a system missing"
+    elif not isinstance(manifest.get("trial_count", 0), int | None):
+        problem = "trial_count not an integer"
+    if problem is not None:
+        fail(f"--resume {path}: {problem}; this folder cannot be resumed")
+    manifest["scenario"].setdefault("name", manifest["scenario"]["file"])
+    return manifest
+
+
 def _read_overrides(path: Path, names: list[str]) -> dict:
-    import yaml
     from pydantic import ValidationError
 
     from runners.run import resolved_configs
+    from scenarios import ScenarioError
+    from scenarios.schema import read_yaml
 
     try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        fail(f"{path}: no such file")
-    except yaml.YAMLError as exc:
-        fail(f"{path}: not valid YAML ({exc})".replace("\n", " "))
+        data = read_yaml(path)
+    except ScenarioError as exc:
+        fail(f"--config {exc}")
     if not isinstance(data, dict):
-        fail(f"{path}: expected a mapping of system names to settings")
-    for name in data:
+        fail(f"--config {path}: expected a mapping of system names to settings")
+    for name, value in data.items():
         if name not in names:
-            fail(f"{path}: {name}: not one of the systems of this run ({', '.join(names)})")
-    try:
-        resolved_configs(names, data)
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        key = ".".join(str(p) for p in first["loc"])
-        fail(f"{path}: {key}: {first['msg']}")
+            fail(f"--config {path}: {name}: not one of the systems of this run ({', '.join(names)})")
+        if value is not None and not isinstance(value, dict):
+            fail(f"--config {path}: {name}: expected a mapping of settings")
+    for name in data:
+        try:
+            resolved_configs([name], data)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            key = ".".join(str(p) for p in first["loc"])
+            fail(f"--config {path}: {name}.{key}: {first['msg']}")
     return data
 
 
 def _run_one(scenario, options, execute) -> None:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
     from runners.executors import ExecutorUnavailable
 
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
     with Progress(*columns, console=console, transient=False) as progress:
-        mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
+        mapping_task = None  # shown only when a system maps (a resume may find every map done)
         trial_task = None
         run_folder: list[Path] = []
 
         logged_tenths = [-1]
 
         def on_mapping(travelled: float, total: float) -> None:
-            progress.update(mapping_task, completed=min(round(travelled), round(total)))
+            if mapping_task is not None:
+                progress.update(mapping_task, completed=min(round(travelled), round(total)))
             tenth = int(10 * travelled / max(total, 1e-9))
             if not console.is_terminal and tenth > logged_tenths[0]:  # logs and CI: a line every 10 %
                 logged_tenths[0] = tenth
                 progress.console.print(f"  mapping {scenario.name}: {travelled:.0f} / {total:.0f} m", highlight=False)
 
         def on_stage(stage: str, value) -> None:
-            nonlocal trial_task
+            nonlocal mapping_task, trial_task
             if stage == "run_dir":
                 run_folder.append(value)
+            elif stage == "mapping":
+                mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
             elif stage == "navigation":
-                progress.update(mapping_task, completed=round(scenario.route_length_m))
+                if mapping_task is not None:
+                    progress.update(mapping_task, completed=round(scenario.route_length_m))
                 trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=value)
 
         def on_trial(record: dict) -> None:
@@ -291,7 +413,15 @@ def _run_one(scenario, options, execute) -> None:
                 log.write_text(traceback.format_exc())
                 message += f" (traceback in {log})"
             fail(message, code=1)
-    print_summary(run_dir.root)
+    if run_dir.failed_stages:
+        failures = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
+        fail(f"navigation stage failed, no trial counted ({failures}); after fixing it: --resume {run_dir.root}", code=1)
+    from runners.results import read_json
+
+    if read_json(run_dir.manifest_path).get("trial_count") == 0:
+        console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+    else:
+        print_summary(run_dir.root)
     console.print(f"results: [bold]{run_dir.root}[/]")
     if run_dir.incomplete:
         fail(f"{len(run_dir.incomplete)} trial(s) left unrun after a worker died; finish with --resume {run_dir.root}", code=1)
@@ -311,10 +441,13 @@ def print_summary(run_dir: Path) -> None:
 # ---------------------------------------------------------------------------------------------
 # scenarios
 
+IMAGE_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
+
 
 @scenario_app.command("list")
 def scenario_list() -> None:
     """The bundled scenarios, one line each."""
+    from scenarios import bundled_names
     from scenarios.scenario import resolve_path
     from scenarios.schema import read_spec
 
@@ -346,10 +479,12 @@ def scenario_show(
 @scenario_app.command("validate")
 def scenario_validate(files: Annotated[list[str], typer.Argument(help="scenario YAML files")]) -> None:
     """Check scenario files; exit 0, or 2 with one line per bad file."""
+    from scenarios import ScenarioError, load_scenario
+
     bad = 0
     for name in files:
         try:
-            load_scenario(name)
+            scenario = load_scenario(name)
         except ScenarioError as exc:
             bad += 1
             err.print(str(exc), highlight=False, soft_wrap=True)
@@ -359,6 +494,8 @@ def scenario_validate(files: Annotated[list[str], typer.Argument(help="scenario 
                 f"{name}: cannot be loaded: {type(exc).__name__}: {exc}".replace("\n", " "), highlight=False, soft_wrap=True
             )
         else:
+            for line in scenario.notes:
+                note(line)
             console.print(f"{name}: ok", highlight=False)
     if bad:
         raise typer.Exit(2)
@@ -371,9 +508,14 @@ def scenario_render(
     no_route: Annotated[bool, typer.Option("--no-route", help="leave out the mapping route")] = False,
 ) -> None:
     """Draw the ground-truth map, obstacles, mapping route and trials."""
+    writable_file(output, "-o", IMAGE_SUFFIXES)
     from scenarios.render import render
 
-    path = render(_load(scenario), output, show_route=not no_route)
+    loaded = _load(scenario)
+    try:
+        path = render(loaded, output, show_route=not no_route)
+    except OSError as exc:
+        fail(f"-o {output}: cannot be written: {exc.strerror or exc}")
     console.print(f"wrote {path}")
 
 
@@ -386,12 +528,37 @@ def report(run_dirs: Annotated[list[Path], typer.Argument(help="results folders 
     """Tables of one or more runs (Markdown and CSV under <run>/report/), printed as a table."""
     from reports.tables import write_tables
 
+    for run_dir in run_dirs:  # every folder is checked before any table is written
+        _check_summary(run_dir)
+        writable_dir(run_dir / "report", "report")
     for run_dir in run_dirs:
-        if not (run_dir / "summary.json").is_file():
-            fail(f"{run_dir}: not a finished run folder (summary.json missing)")
-        out = write_tables(run_dir)
+        try:
+            out = write_tables(run_dir)
+        except OSError as exc:
+            fail(f"{run_dir / 'report'}: cannot be written: {exc.strerror or exc}")
         print_summary(run_dir)
         console.print(f"tables: {out / 'table.md'}, {out / 'table.csv'}")
+
+
+def _check_summary(run_dir: Path) -> None:
+    """A finished run's summary.json that the tables can read, or one line saying why not."""
+    from reports.tables import rows
+
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        fail(f"{run_dir}: not a finished run folder (summary.json missing)")
+    try:
+        summary = json.loads(path.read_bytes())
+    except OSError as exc:
+        fail(f"{path}: cannot be read: {exc.strerror or exc}")
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        fail(f"{path}: not valid JSON ({exc})")
+    if not isinstance(summary, dict) or not all(isinstance(s, dict) for s in summary.values()):
+        fail(f"{path}: not a run summary (expected a JSON object of one object per system)")
+    try:
+        rows(run_dir)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:  # a summary edited by hand
+        fail(f"{path}: unexpected content ({type(exc).__name__}: {exc})")
 
 
 @app.command("plot-graph")
@@ -400,15 +567,21 @@ def plot_graph_command(
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write")],
 ) -> None:
     """Draw NavTopo's graph (locations, their walls, edges) over the ground-truth map."""
-    from navtopo.graph import GraphFormatError
-    from reports.graph_plot import plot_graph
-
     if not (run_dir / "maps" / "navtopo").is_dir():
         fail(f"{run_dir}: no NavTopo map (maps/navtopo missing)")
+    writable_file(output, "-o", IMAGE_SUFFIXES)
+    from navtopo.graph import GraphFormatError
+    from reports.graph_plot import plot_graph
+    from scenarios import ScenarioError
+
     try:
         console.print(f"wrote {plot_graph(run_dir, output)}")
-    except GraphFormatError as exc:
+    except (GraphFormatError, ScenarioError) as exc:
         fail(str(exc))
+    except OSError as exc:
+        fail(f"-o {output}: cannot be written: {exc.strerror or exc}")
+    except (ValueError, KeyError, TypeError) as exc:  # a run folder edited by hand
+        fail(f"{run_dir}: cannot be drawn: {type(exc).__name__}: {exc}")
 
 
 @app.command()
@@ -438,18 +611,35 @@ def train_descriptor(
     worlds: Annotated[int, typer.Option(help="generated training worlds (never the bundled scenarios)", min=1)] = 9,
     threads: Annotated[int | None, typer.Option(help="torch threads (1 is fastest on a shared 2-core machine)")] = 1,
     data_dir: Annotated[Path, typer.Option(help="cache of generated scans")] = Path("data/place_recognition"),
-    out: Annotated[Path | None, typer.Option(help="where the weights go (default: the package's shipped weights)")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="a folder for the weights (default: a new weights/<descriptor>-<time>; the package's shipped "
+            "weights are never overwritten: copy new ones there by hand to ship them)"
+        ),
+    ] = None,
 ) -> None:
     """Train a place-recognition descriptor on scans of generated corridor worlds."""
-    from navtopo.place_recognition import WEIGHTS_DIR, available_descriptors
+    from navtopo.place_recognition import available_descriptors
+    from runners.place_recognition_data import default_training_out, existing_weights
     from runners.place_recognition_data import train_descriptor as train
 
     if descriptor not in available_descriptors() or descriptor == "scan_context":
         fail(f"--descriptor: {descriptor!r} is not a learned descriptor (minkloc3d, polar_bev)")
-    summary = train(
-        descriptor, minutes, worlds, threads, data_dir, out or WEIGHTS_DIR, say=lambda m: console.print(m, highlight=False)
-    )
+    out = out or default_training_out(descriptor)
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out}: is a file, not a folder")
+    if found := existing_weights(out, descriptor):
+        fail(f"--out {out}: already holds {found[0].name}; train into another folder (it is never overwritten)")
+    writable_dir(out, "--out")
+    writable_dir(data_dir, "--data-dir")
+    summary = train(descriptor, minutes, worlds, threads, data_dir, out, say=lambda m: console.print(m, highlight=False))
     sys.stdout.write(json.dumps(summary, indent=2, default=str) + "\n")
+
+
+RECALL_RADIUS_M = 3.0  # a retrieved scan this close to the query is a hit (retrieval.evaluate_revisits)
+MIN_SCAN_SPACING_M = 0.05
+MAX_EVAL_SCANS = 50_000
 
 
 @app.command("eval-place-recognition")
@@ -461,13 +651,32 @@ def eval_place_recognition(
     min_gap: Annotated[float, typer.Option(help="query only scans at least this far back along the route (m)")] = 30.0,
 ) -> None:
     """Recall@1/@5 (3 m) of each descriptor: every route scan queried against earlier passes."""
+    names = [d.strip() for d in descriptors.split(",") if d.strip()]
+    if not names:
+        fail("--descriptors: give at least one descriptor")
+    if not (math.isfinite(spacing) and spacing >= MIN_SCAN_SPACING_M):
+        fail(f"--spacing {spacing}: a scan every at least {MIN_SCAN_SPACING_M} m of the route is needed")
+    if not (math.isfinite(min_gap) and min_gap > RECALL_RADIUS_M):
+        fail(
+            f"--min-gap {min_gap}: must be more than the {RECALL_RADIUS_M} m recall radius, "
+            "else the scans just behind a query match it trivially"
+        )
     import torch
 
+    from navtopo.place_recognition import available_descriptors
     from runners.place_recognition_data import evaluate_scenario
 
+    unknown = [d for d in names if d not in available_descriptors()]
+    if unknown:
+        fail(f"--descriptors: unknown descriptor(s) {', '.join(unknown)} (available: {', '.join(available_descriptors())})")
+    loaded = _load(scenario, with_trials=False)
+    scans = loaded.route_length_m / spacing
+    if scans > MAX_EVAL_SCANS:
+        fail(f"--spacing {spacing}: {scans:,.0f} scans on the {loaded.route_length_m:.0f} m route (at most {MAX_EVAL_SCANS:,})")
     torch.set_num_threads(1)
-    names = [d.strip() for d in descriptors.split(",") if d.strip()]
-    results = evaluate_scenario(_load(scenario, with_trials=False), names, spacing_m=spacing, min_gap_m=min_gap)
+    results = evaluate_scenario(loaded, names, spacing_m=spacing, min_gap_m=min_gap)
+    if all(not r.get("queries") for r in results.values() if "error" not in r):
+        note(f"no scan of {scenario} has an earlier pass ({min_gap} m or more of driving before) within {RECALL_RADIUS_M} m")
     if as_json:
         sys.stdout.write(json.dumps(results, indent=2) + "\n")
         return
@@ -479,9 +688,23 @@ def eval_place_recognition(
     console.print(table)
 
 
-def main() -> None:
-    app()
+def main() -> int:
+    """The `navtopo-bench` entry point: a usage error (a flag's value or type, an unknown option
+    or command) is one `error:` line too, like every other refusal, instead of typer's panel."""
+    try:
+        code = app(standalone_mode=False)
+    except Exception as exc:
+        # click's ClickException (typer vendors click in some versions: recognised by its interface)
+        if not (hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int)):
+            raise
+        if not exc.format_message():  # no arguments at all: the answer is the help, as typer shows it
+            app()
+        context = getattr(exc, "ctx", None)
+        hint = f" (see `{context.command_path} --help`)" if context is not None else ""
+        err.print(f"[bold red]error:[/] {one_line(exc.format_message())}{hint}", highlight=False, soft_wrap=True)
+        return exc.exit_code
+    return code if isinstance(code, int) else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -31,10 +31,15 @@ from navtopo import grid_search
 from runners.mapping import context_for, disk_report
 from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, judge, timeout_s, trajectory_length, trial_record
 from runners.protocol import TrialProtocol, apply_setting
-from runners.results import RunDir, write_json, write_tum
+from runners.results import MAP_FRAME_FILE, RunDir, write_json, write_map_frame, write_tum
 from runners.sim import TRIAL_STREAM, Simulator
 from runners.systems import Status, get_system
 from scenarios import Scenario, load_scenario
+
+
+class MapLoadError(RuntimeError):
+    """A saved map its system cannot load (truncated, edited, another format): the navigation stage
+    failed before any trial, which is not a navigation failure of the system."""
 
 
 @dataclass
@@ -157,7 +162,11 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
         context = context_for(entry, scenario, sim, protocol)
         anchors = Anchors.from_rows(job.anchors)
         t0 = time.perf_counter()
-        system = entry.load(Path(job.map_dir), config, context)
+        try:
+            system = entry.load(Path(job.map_dir), config, context)
+        except Exception as exc:  # noqa: BLE001 - whatever the format's reader raises
+            message = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+            raise MapLoadError(f"the map in {job.map_dir} cannot be loaded: {message}") from None
         map_load_ms = (time.perf_counter() - t0) * 1e3
         first = FirstPlan()
         for index in job.trials:
@@ -169,7 +178,9 @@ def run_trial_job(job: TrialJob) -> dict[str, Any]:
             if run is not None:
                 write_tum(run.trajectory_path(job.system, index), rows)
                 if estimate is not None and len(estimate):
-                    write_tum(run.trajectory_path(job.system, index, estimate=True), estimate)
+                    estimate_path = run.trajectory_path(job.system, index, estimate=True)
+                    write_tum(estimate_path, estimate)
+                    write_map_frame(estimate_path.with_name(MAP_FRAME_FILE), scenario.route_start)
                 run.append_trial(record)
         stats = system.stats()
         memory = {

@@ -31,7 +31,6 @@ import torch
 from numpy.typing import NDArray
 
 from navtopo.place_recognition import (
-    WEIGHTS_DIR,
     PlaceRecognitionDataset,
     TrainingConfig,
     TrainingProgress,
@@ -191,7 +190,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--worlds", type=int, default=9)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--data-dir", type=Path, default=Path("data/place_recognition"))
-    parser.add_argument("--out", type=Path, default=WEIGHTS_DIR)
+    parser.add_argument("--out", type=Path, default=None, help="default: a new folder weights/<descriptor>-<time>")
     parser.add_argument("--eval", metavar="SCENARIO", help="only evaluate the shipped descriptors on SCENARIO")
     args = parser.parse_args(argv)
     if args.eval:
@@ -203,23 +202,44 @@ def main(argv: list[str] | None = None) -> None:
 
     print(
         json.dumps(
-            train_descriptor(args.descriptor, args.minutes, args.worlds, args.threads, args.data_dir, args.out),
+            train_descriptor(
+                args.descriptor,
+                args.minutes,
+                args.worlds,
+                args.threads,
+                args.data_dir,
+                args.out or default_training_out(args.descriptor),
+            ),
             indent=2,
             default=str,
         )
     )
 
 
+def default_training_out(descriptor: str) -> Path:
+    """A new folder for trained weights: never the package's shipped weights (tracked in git, and
+    what every run loads); ship new weights by copying them there by hand."""
+    return Path("weights") / f"{descriptor}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def existing_weights(out: Path, descriptor: str) -> list[Path]:
+    """Files a training into ``out`` would overwrite."""
+    return [p for p in (out / f"{descriptor}.pt", out / f"{descriptor}.json") if p.exists()]
+
+
 def train_descriptor(
-    descriptor: str = "minkloc3d",
-    minutes: float = 15.0,
-    worlds: int = 9,
-    threads: int | None = None,
-    data_dir: Path = Path("data/place_recognition"),
-    out: Path = WEIGHTS_DIR,
+    descriptor: str,
+    minutes: float,
+    worlds: int,
+    threads: int | None,
+    data_dir: Path,
+    out: Path,
     say: Callable[[str], None] = print,
 ) -> dict:
-    """Generate (or reuse cached) scans of generated worlds, train, write the weights; the summary."""
+    """Generate (or reuse cached) scans of generated worlds, train, write the weights into ``out``
+    (refused where weights of ``descriptor`` already are); the summary."""
+    if existing_weights(out, descriptor):
+        raise FileExistsError(f"{out} already holds weights of {descriptor}; train into another folder")
     train_config = ScanDataConfig(worlds=worlds)
     held_out = ScanDataConfig(worlds=1, seed=9000, yaw_jitter_deg=180.0, spacing_m=1.0)
     data_dir.mkdir(parents=True, exist_ok=True)

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from navtopo import geometry as se2
 from scenarios import Scenario
-from scenarios.schema import OdometryNoiseSpec
+from scenarios.schema import GOAL_TOLERANCE_M, OdometryNoiseSpec
 
 INITIAL_POSE_SALT = 0x1A17  # keeps the initial-pose stream apart from the sensor noise streams
 
@@ -45,7 +45,7 @@ class TrialProtocol:
     initial_pose_error_xy: float = 0.5  # m, uniform in [-e, e] along x and along y
     initial_pose_error_yaw_deg: float = 10.0  # degrees, uniform in [-e, e]
     stop_tolerance: float = 0.35  # m, systems that say "reached" by their own estimate
-    goal_tolerance: float = 0.5  # m, the runner's STOP rule on the true pose
+    goal_tolerance: float = GOAL_TOLERANCE_M  # m, the runner's STOP rule on the true pose
     goals: str = "map"  # "map": map-frame points for all; "native": location-relative for graph systems
 
     def as_json(self) -> dict[str, Any]:

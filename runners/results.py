@@ -2,33 +2,27 @@
 
 Writes are atomic (temporary file + rename) except ``trials.jsonl``, which is appended one
 flushed line per finished trial; a torn last line (a crash mid-write) is ignored on reading, so
-``--resume`` loses no finished trial and duplicates none.
+``--resume`` loses no finished trial and duplicates none. Every file is created with the user's
+umask (0644 for the usual 022), temporary files included.
 """
 
 from __future__ import annotations
 
 import fcntl
+import io
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from navtopo.files import atomic_write
+
 
 def write_json(path: Path, data: Any) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, allow_nan=False, default=_plain)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, json.dumps(data, indent=2, allow_nan=False, default=_plain) + "\n")
 
 
 def _plain(value: Any) -> Any:
@@ -53,10 +47,36 @@ def write_tum(path: Path, rows: NDArray) -> None:
     rows = np.asarray(rows, dtype=np.float64).reshape(-1, 4)
     q = quaternion_z(rows[:, 3])
     table = np.column_stack([rows[:, 0], rows[:, 1], rows[:, 2], np.zeros(len(rows)), q])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    np.savetxt(tmp, table, fmt="%.6f")
-    os.replace(tmp, path)
+    buffer = io.StringIO()
+    np.savetxt(buffer, table, fmt="%.6f")
+    atomic_write(path, buffer.getvalue())
+
+
+MAP_FRAME_FILE = "map_frame.json"
+
+
+def write_map_frame(path: Path, world_from_map: NDArray) -> None:
+    """Where the map frame of the ``*.est.tum`` files lies in the scenario frame of the ``*.tum``
+    files: the pose [x, y, yaw] of the mapping route's start, in evo's transform format
+    (``evo_traj tum trial-0.est.tum --transform_left map_frame.json``), so the error is measured
+    without an alignment that would hide drift."""
+    x, y, yaw = (float(v) for v in np.asarray(world_from_map, dtype=np.float64))
+    qx, qy, qz, qw = (float(v) for v in quaternion_z(np.array(yaw)))
+    write_json(
+        path,
+        {
+            "parent_frame": "scenario",
+            "child_frame": "map",
+            "x": x,
+            "y": y,
+            "z": 0.0,
+            "qx": qx,
+            "qy": qy,
+            "qz": qz,
+            "qw": qw,
+            "yaw_deg": float(np.degrees(yaw)),
+        },
+    )
 
 
 class RunDir:
@@ -65,6 +85,7 @@ class RunDir:
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.incomplete: list[tuple[str, int]] = []  # (system, trial) left unrun by a dead worker
+        self.failed_stages: dict[str, str] = {}  # system -> why its navigation stage could not start
 
     @property
     def manifest_path(self) -> Path:
@@ -130,10 +151,7 @@ class RunDir:
             return
         text = self.trials_path.read_text()
         if text and not text.endswith("\n"):
-            keep = text[: text.rfind("\n") + 1]
-            tmp = self.trials_path.with_name(".trials.jsonl.tmp")
-            tmp.write_text(keep)
-            os.replace(tmp, self.trials_path)
+            atomic_write(self.trials_path, text[: text.rfind("\n") + 1])
 
 
 class TrialsTail:

@@ -11,6 +11,7 @@ import socket
 import subprocess
 from collections.abc import Callable
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import closing
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -21,7 +22,7 @@ import psutil
 from runners.executors import run_jobs
 from runners.mapping import MappingSystem, run_mapping
 from runners.metrics import summarize, trial_record
-from runners.navigation import TrialJob, run_trial_job
+from runners.navigation import MapLoadError, TrialJob, run_trial_job
 from runners.protocol import TrialProtocol, apply_setting, setting_of
 from runners.results import RunDir, TrialsTail, point_latest, read_json, write_json
 from runners.systems import get_system
@@ -234,6 +235,7 @@ def execute(
                 )
             )
     run.incomplete = []
+    run.failed_stages = {}
     if jobs:
         say("navigation", sum(len(j.trials) for j in jobs))
         tail = TrialsTail(run, skip=done)
@@ -243,27 +245,32 @@ def execute(
                 if on_trial:
                     on_trial(record)
 
-        for job, _result, error in run_jobs(
-            run_trial_job, jobs, options.workers, options.executor, options.ray_address, on_poll=poll
-        ):
-            poll()
-            if error is None:
-                continue
-            recorded = {r["trial"] for r in run.read_trials() if r["system"] == job.system}
-            unrun = [i for i in job.trials if i not in recorded]
-            if isinstance(error, BrokenProcessPool):
-                # the worker died (killed, out of memory) inside the first unrecorded trial: that
-                # trial fails with the reason; the others stay unrun for --resume
-                failed, left = unrun[:1], unrun[1:]
-                reason = "error: worker process died"
-            else:
-                # the worker raised before its trials (e.g. its map would not load): all of them fail
-                failed, left = unrun, []
-                reason = f"error: {type(error).__name__}: {error}".splitlines()[0][:300]
-            for index in failed:
-                run.append_trial(trial_record(job.system, index, scenario.trials[index], seed, success=False, reason=reason))
-            run.incomplete.extend((job.system, i) for i in left)
-            poll()
+        jobs_run = run_jobs(run_trial_job, jobs, options.workers, options.executor, options.ray_address, on_poll=poll)
+        with closing(jobs_run):  # Ctrl-C in this loop also cancels the queued jobs and ends the workers
+            for job, _result, error in jobs_run:
+                poll()
+                if error is None:
+                    continue
+                if isinstance(error, MapLoadError):  # no trial ran: a failed stage, not failed trials
+                    run.failed_stages.setdefault(job.system, str(error))
+                    continue
+                recorded = {r["trial"] for r in run.read_trials() if r["system"] == job.system}
+                unrun = [i for i in job.trials if i not in recorded]
+                if isinstance(error, BrokenProcessPool):
+                    # the worker died (killed, out of memory) inside the first unrecorded trial: that
+                    # trial fails with the reason; the others stay unrun for --resume
+                    failed, left = unrun[:1], unrun[1:]
+                    reason = "error: worker process died"
+                else:
+                    # the system raised (a bug, not a lost process): the job's unrecorded trials fail
+                    failed, left = unrun, []
+                    reason = f"error: {type(error).__name__}: {error}".splitlines()[0][:300]
+                for index in failed:
+                    run.append_trial(trial_record(job.system, index, scenario.trials[index], seed, success=False, reason=reason))
+                run.incomplete.extend((job.system, i) for i in left)
+                poll()
+    if run.failed_stages:
+        return run  # no summary: the run is unfinished, and --resume retries the stage
     write_summary(run, systems, mapping)
     return run
 

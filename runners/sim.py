@@ -26,14 +26,33 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet as pb
 from numpy.typing import NDArray
 
 from navtopo import geometry as se2
 from navtopo.types import Command, Observation
 from scenarios import Scenario
+from scenarios.schema import SUBSTEP_S  # kinematic integration step; trajectories are sampled at this tick
 
-SUBSTEP_S = 0.05  # kinematic integration step; trajectories are sampled at this tick
+
+def _quiet_import_pybullet():
+    """pybullet prints its build time on stderr (from C, at import), where it would sit above the
+    one-line answers of every command: stderr goes to /dev/null while it loads."""
+    import os
+    import sys
+
+    sys.stderr.flush()
+    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        import pybullet
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+    return pybullet
+
+
+pb = _quiet_import_pybullet()
 MAX_RAYS_PER_CALL = 16383  # rayTestBatch refuses more (docs/NOTES.md)
 FLOOR_MARGIN_M = 5.0
 ROBOT_FLOOR_GAP_M = 0.01

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from scenarios.routes import auto_route, polyline_length, route_space, waypoint_route
-from scenarios.schema import ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
+from scenarios.schema import GOAL_TOLERANCE_M, ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
 from scenarios.world import World, build_world, corridor_polygon, rectangle, with_changes
 
@@ -32,6 +32,7 @@ class Scenario:
     route: NDArray[np.float64]  # (K, 2) mapping route polyline, scenario frame
     trials: list[Trial] = field(default_factory=list)
     navigation_world: World = None  # type: ignore[assignment]  # default: ``world`` itself
+    notes: list[str] = field(default_factory=list)  # things a user should know (one line each), not errors
 
     def __post_init__(self) -> None:
         if self.navigation_world is None:
@@ -109,10 +110,42 @@ def _check_point(
     scenario_file: Path, key: str, xy, world: World, passable: NDArray[np.bool_], radius: float, note: str = ""
 ) -> None:
     cell = world.to_cell(np.asarray(xy, float))
-    if not world.inside(cell) or not passable[tuple(cell)]:
-        clearance = world.clearance_at(np.asarray(xy, float)) if world.inside(cell) else 0.0
+    if not world.inside(cell):
+        xmin, ymin, xmax, ymax = world.bounds
+        raise ScenarioError(
+            scenario_file,
+            key,
+            f"{list(xy)} is outside the map (x {xmin:.2f} .. {xmax:.2f}, y {ymin:.2f} .. {ymax:.2f})",
+        )
+    if not passable[tuple(cell)]:
+        clearance = world.clearance_at(np.asarray(xy, float))
         where = ("inside a wall or obstacle" if clearance <= 0 else f"only {clearance:.2f} m from a wall") + note
         raise ScenarioError(scenario_file, key, f"{list(xy)} is {where}; the robot (radius {radius} m) needs more room")
+
+
+MIN_ROUTE_M = 1.0  # a mapping route shorter than this maps nothing
+REROUTE_NOTE_FACTOR, REROUTE_NOTE_M = 1.2, 1.0  # a waypoint leg this much longer than straight is reported
+
+
+def reroute_notes(world: World, waypoints: NDArray, route: NDArray, file: Path) -> list[str]:
+    """One note per waypoint leg the planner had to take round walls (longer than the straight
+    line by a factor and a margin): a user who drew a leg through a wall learns it was re-routed."""
+    waypoints = np.asarray(waypoints, float)
+    notes = []
+    # the route passes every waypoint in order: split it there
+    cursor = 0
+    for i in range(1, len(waypoints)):
+        hits = np.flatnonzero(np.all(np.isclose(route[cursor:], waypoints[i], atol=1e-9), axis=1))
+        end = cursor + int(hits[0]) if len(hits) else len(route) - 1
+        driven = polyline_length(route[cursor : end + 1])
+        straight = float(np.linalg.norm(waypoints[i] - waypoints[i - 1]))
+        if driven > REROUTE_NOTE_FACTOR * straight + REROUTE_NOTE_M:
+            notes.append(
+                f"{file}: mapping_route.waypoints.{i}: the leg from waypoint {i - 1} is {straight:.1f} m straight but "
+                f"{driven:.1f} m through free space: it was re-routed round walls"
+            )
+        cursor = end
+    return notes
 
 
 MIN_PIECE_M2 = 0.25  # smaller free pieces (raster slivers around obstacles) are ignored
@@ -176,13 +209,19 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
                 f"mapping_route.waypoints.{bad}",
                 f"not connected to waypoint {bad - 1} through free space wide enough for the robot",
             )
+        notes = reroute_notes(world, np.asarray(route_spec.waypoints, float), route, path)
     else:
         assert route_spec.auto is not None
         try:
             route = auto_route(world, space, route_spec.auto.min_length, np.random.default_rng(rng.integers(2**32)))
         except ValueError as exc:
             raise ScenarioError(path, "mapping_route.auto", str(exc)) from None
-    scenario = Scenario(spec=spec, path=path, world=world, route=route)
+        notes = []
+    if polyline_length(route) < MIN_ROUTE_M:
+        raise ScenarioError(
+            path, "mapping_route", f"the route is {polyline_length(route):.2f} m long: at least {MIN_ROUTE_M} m is needed to map"
+        )
+    scenario = Scenario(spec=spec, path=path, world=world, route=route, notes=notes)
     scenario.__dict__["passable"] = passable
     if not with_trials:
         return scenario
@@ -214,6 +253,14 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
             raise ScenarioError(path, "trials.generate", f"{exc}{where}") from None
     else:
         for i, t in enumerate(spec.trials):
+            apart = float(np.hypot(t.goal[0] - t.start[0], t.goal[1] - t.start[1]))
+            if apart <= GOAL_TOLERANCE_M:
+                raise ScenarioError(
+                    path,
+                    f"trials.{i}.goal",
+                    f"{list(t.goal)} is {apart:.2f} m from the start: within the {GOAL_TOLERANCE_M} m goal tolerance, "
+                    "the trial would succeed without moving",
+                )
             for end, xy in (("start", t.start[:2]), ("goal", t.goal)):
                 _check_point(path, f"trials.{i}.{end}", xy, world, passable, radius)
                 if nav is not world:

@@ -9,8 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from scenarios.strict_yaml import YamlProblem, load_file
 
 FORMAT = "navtopo-scenario/1"
 
@@ -22,6 +23,13 @@ Integer = Annotated[int, Field(strict=True)]
 Flag = Annotated[bool, Field(strict=True)]
 XY = tuple[Number, Number]
 MAX_RASTER_CELLS = 60_000_000  # about 7.7 x 7.7 km at 1 m, 390 x 390 m at 0.05 m
+# Bounds that keep a scenario that validates runnable (DESIGN.md, "Scenario validation, strictly"):
+MAX_RAYS_PER_SCAN = 262_144  # 2^18: an Ouster OS1-128 at 2048 columns; each scan is cast in full every tick
+MIN_RATE_HZ, MAX_RATE_HZ = 1.0, 50.0  # the control and sensor tick is 1 / rate_hz (runners/sim.py)
+SUBSTEP_S = 0.05  # s, the simulator's collision-checked substep (runners/sim.py)
+MAX_ROUTE_M = 100_000.0  # an auto route of 100 km takes a day to drive at 1 m/s
+MAX_SENSOR_RANGE_M = 500.0
+GOAL_TOLERANCE_M = 0.5  # the STOP rule's radius (runners.protocol): a trial's ends must lie farther apart
 
 
 class ScenarioError(Exception):
@@ -60,7 +68,7 @@ class MapSpec(Strict):
 
 class WorldSpec(Strict):
     resolution: Positive = 0.05
-    wall_height: Positive = 2.6
+    wall_height: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.1)] = 2.6
     ceiling: Flag = True  # extension of format 1: a flat ceiling at wall_height, as indoors
     corridors: list[CorridorSpec] = []
     rooms: list[RoomSpec] = []
@@ -80,18 +88,29 @@ class WorldSpec(Strict):
 
 
 class RobotSpec(Strict):
-    radius: Positive = 0.3
-    max_linear: Positive = 1.0
-    max_angular: Positive = 1.5
+    radius: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.05, le=5.0)] = 0.3
+    max_linear: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.05)] = 1.0
+    max_angular: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0.05, le=20.0)] = 1.5
+
+    @model_validator(mode="after")
+    def _no_tunnelling(self) -> RobotSpec:
+        # collisions are checked at the end of every substep: a robot that moves more than its
+        # radius in one could pass through a wall between two checks
+        if self.max_linear * SUBSTEP_S > self.radius:
+            raise ValueError(
+                f"max_linear {self.max_linear} m/s moves the robot {self.max_linear * SUBSTEP_S:.2f} m per "
+                f"{SUBSTEP_S} s collision check, more than its radius {self.radius} m (at most {self.radius / SUBSTEP_S:g} m/s)"
+            )
+        return self
 
 
 class SensorSpec(Strict):
     channels: Annotated[int, Field(strict=True, ge=1, le=128)] = 16
     vertical_fov: tuple[Number, Number] = (-15.0, 15.0)
     horizontal_resolution: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=45)] = 1.0
-    max_range: Positive = 15.0
+    max_range: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=MAX_SENSOR_RANGE_M)] = 15.0
     mount_height: Positive = 0.6
-    rate_hz: Positive = 5.0
+    rate_hz: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=MIN_RATE_HZ, le=MAX_RATE_HZ)] = 5.0
     range_noise: NonNegative = 0.0
 
     @model_validator(mode="after")
@@ -99,6 +118,12 @@ class SensorSpec(Strict):
         low, high = self.vertical_fov
         if not -90.0 <= low <= high <= 90.0:
             raise ValueError(f"vertical_fov must satisfy -90 <= low <= high <= 90 (got {low}, {high})")
+        if self.rays > MAX_RAYS_PER_SCAN:
+            raise ValueError(
+                f"{self.channels} channels x {round(360.0 / self.horizontal_resolution):,} columns "
+                f"(horizontal_resolution {self.horizontal_resolution}°) = {self.rays:,} rays a scan, "
+                f"more than the {MAX_RAYS_PER_SCAN:,} the simulator casts per tick"
+            )
         return self
 
     @property
@@ -118,7 +143,7 @@ class OdometrySpec(Strict):
 
 
 class AutoRouteSpec(Strict):
-    min_length: Positive
+    min_length: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=MAX_ROUTE_M)]
 
 
 class RouteSpec(Strict):
@@ -157,7 +182,7 @@ class ScenarioSpec(Strict):
     format: Literal["navtopo-scenario/1"]
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    seed: Integer = 0
+    seed: Annotated[int, Field(strict=True, ge=0, le=2**63 - 1)] = 0
     world: WorldSpec
     robot: RobotSpec = RobotSpec()
     sensor: SensorSpec = SensorSpec()
@@ -197,27 +222,45 @@ def parse_spec(data: Any, file: str | Path) -> ScenarioSpec:
     if not isinstance(data, dict):
         raise ScenarioError(file, "", "not a YAML mapping of keys")
     try:
-        return ScenarioSpec.model_validate(data)
+        spec = ScenarioSpec.model_validate(data)
     except ValidationError as exc:
         errors = exc.errors()
         # with a union ('trials'), prefer the branch error that names a real key
         errors.sort(key=lambda e: e["type"] == "list_type" or e["type"] == "model_type")
         first = errors[0]
         raise ScenarioError(file, _key(first["loc"]), _reason(first)) from None
+    return check_spec(spec, file)
+
+
+def check_spec(spec: ScenarioSpec, file: str | Path) -> ScenarioSpec:
+    """Checks across sections that no single section can make."""
+    if spec.sensor.mount_height >= spec.world.wall_height:
+        # the lidar would see over every wall (and from above the ceiling): nothing to map
+        raise ScenarioError(
+            file,
+            "sensor.mount_height",
+            f"{spec.sensor.mount_height} m is not below world.wall_height {spec.world.wall_height} m: "
+            "the lidar would look over the walls" + (" from above the ceiling" if spec.world.ceiling else ""),
+        )
+    return spec
+
+
+def read_yaml(path: str | Path, file: str | Path | None = None) -> Any:
+    """A user's YAML file (``strict_yaml``: YAML 1.2 numbers, unique keys); ``ScenarioError``
+    naming ``file`` (default: ``path``) and the line on any problem."""
+    path = Path(path)
+    file = path if file is None else file
+    try:
+        return load_file(path)
+    except FileNotFoundError:
+        raise ScenarioError(file, "", "no such file") from None
+    except IsADirectoryError:
+        raise ScenarioError(file, "", "is a folder, not a YAML file") from None
+    except OSError as exc:
+        raise ScenarioError(file, "", f"cannot read: {exc.strerror or exc}") from None
+    except YamlProblem as exc:
+        raise ScenarioError(file, f"line {exc.line}" if exc.line is not None else "", exc.reason) from None
 
 
 def read_spec(path: str | Path) -> ScenarioSpec:
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ScenarioError(path, "", "no such file") from None
-    except OSError as exc:
-        raise ScenarioError(path, "", f"cannot read: {exc.strerror}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else "(parse)"
-        raise ScenarioError(path, where, f"not valid YAML: {getattr(exc, 'problem', exc)}") from None
-    return parse_spec(data, path)
+    return parse_spec(read_yaml(path), path)

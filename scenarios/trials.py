@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from scenarios.routes import polyline_length, shortest_path
+from scenarios.schema import GOAL_TOLERANCE_M
 from scenarios.world import World
 
 SAMPLE_MARGIN_M = 0.1  # generated ends keep this much more than the robot radius from walls
@@ -86,6 +87,8 @@ def generate_trials(
         )
         if trial is None or trial.shortest_m < min_distance:
             continue
+        if np.hypot(*(goal_xy - start_xy)) <= GOAL_TOLERANCE_M:
+            continue  # it would succeed without moving
         if max_distance is not None and trial.shortest_m > max_distance:
             continue
         trials.append(trial)

@@ -25,16 +25,39 @@ from typing import Any
 import cv2
 import numpy as np
 import shapely
-import yaml
 from numpy.typing import NDArray
 from scipy import ndimage
 from shapely import affinity
 from shapely.geometry import LinearRing, LineString, MultiPolygon, Polygon, box
 from shapely.ops import unary_union
 
-from scenarios.schema import MAX_RASTER_CELLS, ObstacleSpec, ScenarioError, WorldSpec
+from scenarios.schema import MAX_RASTER_CELLS, ObstacleSpec, ScenarioError, WorldSpec, read_yaml
 
 PADDING_M = 1.0  # wall margin around the free space in a shape world's raster
+# what a scenario takes per raster cell at its peak: the rasters, clearance and labels of the
+# scenario itself, route spaces and skeletons, the oracle's and the simulator's copies (measured:
+# about 80 B per cell loading the bundled scenes; the rest is margin)
+BYTES_PER_CELL = 160
+MEMORY_SHARE = 0.5  # a scenario may take at most this share of the machine's memory
+
+
+def check_raster_size(shape: tuple[int, int], resolution: float, what: str = "a raster") -> None:
+    """Refuse a raster that would not fit: ``ValueError`` with the reason."""
+    cells = int(shape[0]) * int(shape[1])
+    if cells > MAX_RASTER_CELLS:
+        raise ValueError(
+            f"{what} of {shape[0]} x {shape[1]} cells at {resolution} m is too large (at most {MAX_RASTER_CELLS:,} cells): "
+            "use a coarser resolution or a smaller world"
+        )
+    import psutil
+
+    total = psutil.virtual_memory().total
+    need = cells * BYTES_PER_CELL
+    if need > MEMORY_SHARE * total:
+        raise ValueError(
+            f"{what} of {shape[0]} x {shape[1]} cells at {resolution} m needs about {need / 1e9:.1f} GB, more than "
+            f"{MEMORY_SHARE:.0%} of this machine's {total / 1e9:.1f} GB: use a coarser resolution or a smaller world"
+        )
 
 
 @dataclass
@@ -168,11 +191,7 @@ def shape_world(spec: WorldSpec) -> World:
     res = spec.resolution
     origin = np.array([np.floor((xmin - PADDING_M) / res) * res, np.floor((ymin - PADDING_M) / res) * res])
     shape = (int(np.ceil((ymax + PADDING_M - origin[1]) / res)), int(np.ceil((xmax + PADDING_M - origin[0]) / res)))
-    if shape[0] * shape[1] > MAX_RASTER_CELLS:
-        raise ValueError(
-            f"a raster of {shape[0]} x {shape[1]} cells at {res} m is too large (at most {MAX_RASTER_CELLS:,} cells): "
-            "use a coarser resolution or a smaller world"
-        )
+    check_raster_size(shape, res)
     return World(
         resolution=res,
         origin=origin,
@@ -194,12 +213,11 @@ def read_ros_map(
     yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml"
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
     """Free cells (row 0 = lowest y), origin and resolution of a map_server map."""
+    if yaml_path.is_dir():
+        raise ScenarioError(scenario_file, key, f"{yaml_path} is a folder, not a map_server YAML file")
     if not yaml_path.is_file():
         raise ScenarioError(scenario_file, key, f"map file {yaml_path} not found")
-    try:
-        meta = yaml.safe_load(yaml_path.read_text())
-    except yaml.YAMLError as exc:
-        raise ScenarioError(yaml_path, "", f"not valid YAML: {exc}") from None
+    meta = read_yaml(yaml_path)
     if not isinstance(meta, dict):
         raise ScenarioError(yaml_path, "", "not a map_server YAML mapping")
     for required in ("image", "resolution", "origin"):
@@ -230,9 +248,16 @@ def read_ros_map(
     image_path = (yaml_path.parent / str(meta["image"])).resolve()
     if not image_path.is_file():
         raise ScenarioError(yaml_path, "image", f"map image {image_path.name} not found next to {yaml_path.name}")
-    image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
-    if image is None or image.size == 0:
-        raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
+    size = image_size(image_path)  # from the header, before decoding; None: a format Pillow does not read
+    try:
+        if size is not None:
+            check_raster_size((size[1], size[0]), resolution, f"map image {image_path.name}")
+        image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+        if image is None or image.size == 0:
+            raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
+        check_raster_size(image.shape[:2], resolution, f"map image {image_path.name}")
+    except ValueError as exc:
+        raise ScenarioError(yaml_path, "image", str(exc)) from None
     if image.ndim == 3:
         image = image[..., :3].mean(axis=2)
     scale = 65535.0 if image.dtype == np.uint16 else 255.0
@@ -244,6 +269,21 @@ def read_ros_map(
         free = p <= free_thresh
     free = free[::-1].copy()  # image row 0 is the largest y
     return free, np.array([origin[0], origin[1]]), resolution
+
+
+def image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) of an image from its header, without decoding it; None if unreadable."""
+    from PIL import Image
+
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None  # the size is checked by ``check_raster_size``, with a reason
+    try:
+        with Image.open(path) as image:
+            return image.size
+    except Exception:  # noqa: BLE001 - any file Pillow cannot identify
+        return None
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
 
 
 def largest_component(free: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -20,7 +20,6 @@ unknown 205, row 0 of the image the largest y, ``negate: 0``, ``occupied_thresh:
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from navtopo import geometry as se2
+from navtopo.files import atomic_write
 from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, GridConfig
 from navtopo.local_grid import _trace_scan as trace_scan  # the shared compiled tracer
 
@@ -104,11 +104,11 @@ class GridMap:
             ok, data = cv2.imencode(".png", rows_down)
             if not ok:
                 raise ValueError("could not encode the map as PNG")
-            _atomic_write(image_path, data.tobytes())
+            atomic_write(image_path, data.tobytes())
         else:
             height, width = image.shape
             header = f"P5\n# navtopo-bench metric_grid, {self.resolution} m/cell\n{width} {height}\n255\n"
-            _atomic_write(image_path, header.encode("ascii") + rows_down.tobytes())
+            atomic_write(image_path, header.encode("ascii") + rows_down.tobytes())
         meta = {
             "image": image_path.name,
             "mode": "trinary",
@@ -118,7 +118,7 @@ class GridMap:
             "occupied_thresh": 0.65,
             "free_thresh": 0.196,
         }
-        _atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode())
+        atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode())
         return yaml_path
 
     @classmethod
@@ -140,13 +140,6 @@ class GridMap:
         cells[occupancy < float(meta.get("free_thresh", 0.196))] = FREE
         origin = np.array(meta["origin"][:2], dtype=np.float64)
         return cls(np.ascontiguousarray(np.flipud(cells)), origin, float(meta["resolution"]))
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write through a temporary file and a rename, so a crash leaves no half-written map."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
 
 
 def read_image(path: Path) -> NDArray[np.uint8]:

@@ -21,9 +21,10 @@ AZIMUTH_BINS = 360
 
 def voxel_filter_2d(points: ArrayLike, voxel: float) -> NDArray[np.float32]:
     """(N, >=2) -> (M, 2) float32: the mean x, y of the points in each occupied voxel."""
-    xy = np.asarray(points, dtype=np.float64).reshape(len(points), -1)[:, :2]
-    if len(xy) == 0:
+    xy = np.asarray(points, dtype=np.float64)
+    if len(xy) == 0:  # a scan with no returns (open space beyond range): reshape(0, -1) would raise
         return np.zeros((0, 2), np.float32)
+    xy = xy.reshape(len(xy), -1)[:, :2]
     cells = np.floor(xy / voxel).astype(np.int64)
     keys = (cells[:, 0] << 32) + cells[:, 1]  # one int64 per voxel: 1D unique is ~10x faster
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
