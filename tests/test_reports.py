@@ -4,6 +4,8 @@ saved maps against the ground truth."""
 
 from __future__ import annotations
 
+import csv
+import io
 import shutil
 
 import numpy as np
@@ -12,6 +14,7 @@ from crafted_run import write_crafted_run
 
 from reports import stats
 from reports.results import Run, RunFormatError
+from reports.tables import cells, latex, markdown_document, table_rows, to_csv
 
 
 @pytest.fixture
@@ -95,3 +98,74 @@ def test_bootstrap_is_seeded_needs_five_values_and_brackets_the_statistic():
     # whole trials are resampled: five trials of identical calls give a point interval
     assert stats.bootstrap_pooled([[100.0, 300.0]] * 5, 50.0) == pytest.approx((200.0, 200.0))
     assert stats.bootstrap_pooled([[1.0]] * 4) is None
+
+
+# --- Table 1 against figures computed on paper ---------------------------------------------
+
+
+def test_table_rows_match_the_figures_computed_by_hand(crafted):
+    rows = table_rows([Run.load(crafted)])
+    topo, metric, *paper = rows
+    assert [r.system for r in rows[:2]] == ["navtopo", "metric_grid"] and all(r.paper for r in paper)
+    # navtopo: 5 of 6 succeed; efficiency over successes (0.9+0.8+0.7+1.0+0.6)/5; SPL over all /6
+    assert (topo.trials, topo.successes, topo.failure_reasons) == (6, 5, {"timeout": 1})
+    assert topo.efficiency == pytest.approx(0.8) and topo.spl == pytest.approx(4.0 / 6)
+    # first plans 4, 6, 8, 2, 10, 12: median 7, p95 10 + 0.75 * 2 (linear interpolation)
+    assert topo.first_plan_ms_median == pytest.approx(7.0) and topo.first_plan_ms_p95 == pytest.approx(11.5)
+    # every call: 1..20 ms over the six trials: median 10.5, p95 1 + 0.95 * 19
+    assert topo.planning_calls == 20
+    assert topo.planning_ms_median == pytest.approx(10.5) and topo.planning_ms_p95 == pytest.approx(19.05)
+    assert topo.memory == {"map": 1_000_000, "localization": 500_000, "derived": 250_000, "model": 1_250_000, "total": 3_000_000}
+    assert (topo.disk_bytes, topo.rss_bytes, topo.rss_process_bytes) == (800_000, 40_000_000, 400_000_000)
+    assert (topo.mapping_ms_per_scan_median, topo.mapping_ms_per_scan_p95) == (25.0, 40.0)
+    assert topo.efficiency_ci is not None and topo.efficiency_ci[0] <= 0.8 <= topo.efficiency_ci[1]
+    # the metric baseline: 4 of 6, both failures collisions; efficiency over 4 successes: no interval
+    assert (metric.successes, metric.failure_reasons) == (4, {"collision": 2})
+    assert metric.efficiency == pytest.approx(0.95) and metric.efficiency_ci is None
+    assert metric.spl_ci is not None and metric.spl_ci[0] <= metric.spl <= metric.spl_ci[1]
+    assert (metric.planning_ms_median, metric.planning_ms_p95, metric.first_plan_ms_median) == (200.0, 300.0, 500.0)
+
+    shown = cells(topo)
+    assert shown["success"].startswith("5/6 (83 %) [")
+    assert shown["failures"] == "timeout 1"
+    assert shown["memory"] == "3.00 (1.00 / 0.50 / 0.25 / 1.25)"
+    assert shown["rss"] == "40.00 / 400" and shown["disk"] == "0.80" and shown["mapping"] == "25.0 / 40.0"
+    assert shown["planning"].startswith("10.5 [") and shown["planning"].endswith("/ 19.1")
+    assert cells(metric)["efficiency"] == "0.950"
+    # identical trials give a point interval: every call 100 or 300 ms, median 200
+    assert cells(metric)["planning"] == "200 [200, 200] / 300"
+
+
+def test_markdown_csv_and_latex_carry_the_same_figures(crafted):
+    rows = table_rows([Run.load(crafted)])
+    text = markdown_document(rows)
+    lines = [line for line in text.splitlines() if line.startswith("| ")]
+    assert len(lines) == 1 + 2 + 2  # header, two measured rows, the paper's two
+    assert "| crafted | precise | navtopo | 5/6 (83 %)" in text and "*the paper*" in text
+    table = list(csv.DictReader(io.StringIO(to_csv(rows))))
+    topo = table[0]
+    assert (topo["system"], topo["source"], topo["trials"], topo["failure_reasons"]) == ("navtopo", "measured", "6", "timeout:1")
+    assert float(topo["planning_ms_p95"]) == pytest.approx(19.05) and float(topo["memory_total_mb"]) == 3.0
+    assert float(topo["memory_model_mb"]) == 1.25 and float(topo["efficiency"]) == pytest.approx(0.8)
+    assert float(topo["efficiency_ci_low"]) <= 0.8 <= float(topo["efficiency_ci_high"])
+    assert table[2]["source"] == "paper" and float(table[2]["memory_total_mb"]) == 57.0
+    tex = latex(rows)
+    assert tex.count(r"\\") >= 5 and r"metric\_grid" in tex and r"\begin{tabular}" in tex and r"\bottomrule" in tex
+    assert "%" not in tex.replace(r"\%", "")  # every percent sign escaped
+
+
+def test_runs_of_one_scenario_and_setting_pool_their_trials(tmp_path):
+    a = Run.load(write_crafted_run(tmp_path / "a", seed=7))
+    b = Run.load(write_crafted_run(tmp_path / "b", seed=8, memory_scale=2.0))
+    other = Run.load(write_crafted_run(tmp_path / "c", seed=7, scenario="other"))
+    rows = [r for r in table_rows([a, b, other]) if not r.paper]
+    assert [(r.scenario, r.system) for r in rows] == [
+        ("crafted", "navtopo"),
+        ("crafted", "metric_grid"),
+        ("other", "navtopo"),
+        ("other", "metric_grid"),
+    ]
+    topo = rows[0]
+    assert topo.seeds == [7, 8] and (topo.trials, topo.successes, topo.planning_calls) == (12, 10, 40)
+    assert topo.memory["total"] == 6_000_000  # the larger of the two runs
+    assert topo.planning_ms_median == pytest.approx(10.5)
