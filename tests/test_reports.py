@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import csv
 import io
+import json
+import math
 import shutil
 
 import numpy as np
@@ -13,6 +15,7 @@ import pytest
 from crafted_run import write_crafted_run
 
 from reports import stats
+from reports.plots import graph_layout, grid_layer, run_plots
 from reports.results import Run, RunFormatError
 from reports.tables import cells, latex, markdown_document, table_rows, to_csv
 
@@ -169,3 +172,59 @@ def test_runs_of_one_scenario_and_setting_pool_their_trials(tmp_path):
     assert topo.seeds == [7, 8] and (topo.trials, topo.successes, topo.planning_calls) == (12, 10, 40)
     assert topo.memory["total"] == 6_000_000  # the larger of the two runs
     assert topo.planning_ms_median == pytest.approx(10.5)
+
+
+# --- plots: saved maps placed against the ground truth ---------------------------------------
+
+
+def test_a_graph_is_placed_at_the_true_poses_and_its_walls_where_the_grids_hold_them(crafted):
+    run = Run.load(crafted)
+    layout = graph_layout(run, "navtopo")
+    assert layout.placed_by == "anchor" and layout.edges == [(0, 1)]
+    assert layout.poses == pytest.approx(np.array([[1.0, 0.5, math.pi / 2], [3.0, 0.5, 0.0]]))
+    # worked out in tests/crafted_run.py (_write_graph)
+    assert layout.walls[0] == pytest.approx(np.array([[0.95, 1.55]]))
+    assert layout.walls[1] == pytest.approx(np.array([[3.05, -0.45]]))
+    # without anchors the odometry hints composed with the map frame give the same places (precise run)
+    mapping = json.loads((crafted / "mapping" / "navtopo.json").read_text())
+    del mapping["anchors"]
+    (crafted / "mapping" / "navtopo.json").write_text(json.dumps(mapping))
+    by_hint = graph_layout(Run.load(crafted), "navtopo")
+    assert by_hint.placed_by == "hint"
+    assert by_hint.poses == pytest.approx(layout.poses)
+    assert by_hint.walls[0] == pytest.approx(layout.walls[0])
+
+
+def test_a_grid_map_is_placed_by_the_map_frame(crafted):
+    layer = grid_layer(Run.load(crafted), "metric_grid")
+    assert layer.centres(layer.occupied) == pytest.approx(np.array([[0.05, 0.45]]))
+    assert layer.free.sum() == 99
+    # the grid's lower-left cell: (-0.45, -0.45) in the map frame -> (0.5 + 0.45, -0.45)
+    corner = np.zeros_like(layer.free)
+    corner[-1, 0] = True
+    assert layer.centres(corner) == pytest.approx(np.array([[0.95, -0.45]]))
+
+
+def test_run_plots_writes_png_and_svg_of_every_plot(crafted, tmp_path):
+    results = run_plots(Run.load(crafted), tmp_path / "plots")
+    names = [p.name for p in results]
+    assert names == [
+        "map_navtopo",
+        "map_metric_grid",
+        "trajectories_navtopo",
+        "trajectories_metric_grid",
+        "planning",
+        "efficiency",
+        "map_growth",
+    ]
+    for plot in results:
+        assert plot.note == "" and [f.suffix for f in plot.files] == [".png", ".svg"], plot
+        assert all(f.stat().st_size > 1000 for f in plot.files)
+
+
+def test_plots_that_need_the_ground_truth_are_skipped_with_a_note_when_it_is_missing(crafted, tmp_path):
+    shutil.rmtree(crafted / "ground_truth")
+    results = {p.name: p for p in run_plots(Run.load(crafted), tmp_path / "plots")}
+    assert results["map_metric_grid"].files == [] and "ground_truth/raster.yaml" in results["map_metric_grid"].note
+    assert results["map_navtopo"].files and "no ground_truth/" in results["map_navtopo"].note  # placed by anchors
+    assert results["planning"].files and results["efficiency"].files
