@@ -211,8 +211,8 @@ def graph_layout(run: Run, system: str) -> GraphLayout:
     return GraphLayout(poses, edges, walls, placed_by)
 
 
-def plot_graph_map(run: Run, system: str, folder: Path) -> PlotResult:
-    result = PlotResult(f"map_{system}", f"{system}: the topological graph over the GT map")
+def plot_graph_map(run: Run, system: str, folder: Path, name: str | None = None) -> PlotResult:
+    result = PlotResult(name or f"map_{system}", f"{system}: the topological graph over the GT map")
     try:
         layout = graph_layout(run, system)
     except MapFormatError as exc:
@@ -531,8 +531,9 @@ def plot_growth(run: Run, folder: Path) -> PlotResult:
 # ---------------------------------------------------------------------------------------------
 
 
-def run_plots(run: Run, folder: Path) -> list[PlotResult]:
-    """Every plot of one run, written under ``folder``."""
+def run_plots(run: Run, folder: Path, combined: bool = True) -> list[PlotResult]:
+    """Every plot of one run, written under ``folder``; ``combined=False`` leaves out the planning
+    and efficiency plots (a report of several runs draws them once, over all runs)."""
     out: list[PlotResult] = []
     for system in run.systems:
         kind = run.map_kind(system)
@@ -542,8 +543,9 @@ def run_plots(run: Run, folder: Path) -> list[PlotResult]:
             out.append(plot_grid_map(run, system, folder))
     for system in run.systems:
         out.append(plot_trajectories(run, system, folder))
-    groups = groups_of([run])
-    out.append(plot_planning(groups, folder))
-    out.append(plot_efficiency(groups, folder))
+    if combined:
+        groups = groups_of([run])
+        out.append(plot_planning(groups, folder))
+        out.append(plot_efficiency(groups, folder))
     out.append(plot_growth(run, folder))
     return out

@@ -537,14 +537,12 @@ def rows(run_dir: Path) -> list[dict[str, str]]:
     return out
 
 
-def write_tables(run_dirs: Path | list[Path], out: Path | None = None) -> Path:
-    """table.md, table.csv and table.tex of one or more runs under ``out`` (default <run>/report)."""
-    dirs = [run_dirs] if isinstance(run_dirs, (str, Path)) else list(run_dirs)
-    runs = [Run.load(d) for d in dirs]
-    out = Path(out) if out is not None else Path(dirs[0]) / "report"
+def write_tables(runs: list[Run], out: Path) -> list[Path]:
+    """table.md, table.csv and table.tex of ``runs`` (one combined table) under ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     table = table_rows(runs)
-    (out / "table.md").write_text(markdown_document(table, paper_comparison(table)))
-    (out / "table.csv").write_text(to_csv(table))
-    (out / "table.tex").write_text(latex(table))
-    return out
+    files = [out / "table.md", out / "table.csv", out / "table.tex"]
+    files[0].write_text(markdown_document(table, paper_comparison(table)))
+    files[1].write_text(to_csv(table))
+    files[2].write_text(latex(table))
+    return files

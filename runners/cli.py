@@ -382,33 +382,51 @@ def scenario_render(
 
 
 @app.command()
-def report(run_dirs: Annotated[list[Path], typer.Argument(help="results folders of runs")]) -> None:
-    """Tables of one or more runs (Markdown and CSV under <run>/report/), printed as a table."""
-    from reports.tables import write_tables
+def report(
+    run_dirs: Annotated[list[Path], typer.Argument(help="results folders of runs")],
+    out: Annotated[Path | None, typer.Option(help="folder of the report (default: the first RUN_DIR's report/)")] = None,
+) -> None:
+    """Table 1 (table.md, .csv, .tex), plots (PNG and SVG) and a self-contained report.html.
 
+    Several RUN_DIRs (scenarios, settings, seeds) make one combined report, written under --out or,
+    without it, under the first RUN_DIR's report/. Reads the results folders only."""
+    from reports.report import make_report
+    from reports.results import RunFormatError
+
+    try:
+        made = make_report(run_dirs, out)
+    except RunFormatError as exc:
+        fail(str(exc))
+    except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the runs
+        fail(f"report of {', '.join(map(str, run_dirs))} failed: {type(exc).__name__}: {exc}".replace("\n", " "), code=1)
     for run_dir in run_dirs:
-        if not (run_dir / "summary.json").is_file():
-            fail(f"{run_dir}: not a finished run folder (summary.json missing)")
-        out = write_tables(run_dir)
         print_summary(run_dir)
-        console.print(f"tables: {out / 'table.md'}, {out / 'table.csv'}")
+    for note in made.notes:
+        console.print(f"note: {note}", highlight=False)
+    console.print(f"tables: {made.out / 'table.md'}, table.csv, table.tex", highlight=False)
+    console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
 
 @app.command("plot-graph")
 def plot_graph_command(
     run_dir: Annotated[Path, typer.Argument(help="a results folder with a NavTopo map")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write (an SVG is written beside it)")],
+    system: Annotated[str, typer.Option(help="the system whose graph map to draw")] = "navtopo",
 ) -> None:
-    """Draw NavTopo's graph (locations, their walls, edges) over the ground-truth map."""
-    from navtopo.graph import GraphFormatError
-    from reports.graph_plot import plot_graph
+    """Draw a graph map (locations, their walls, edges) over the ground-truth map."""
+    from reports.plots import plot_graph_map
+    from reports.results import Run, RunFormatError
 
-    if not (run_dir / "maps" / "navtopo").is_dir():
-        fail(f"{run_dir}: no NavTopo map (maps/navtopo missing)")
     try:
-        console.print(f"wrote {plot_graph(run_dir, output)}")
-    except GraphFormatError as exc:
+        run = Run.load(run_dir, require_summary=False)
+    except RunFormatError as exc:
         fail(str(exc))
+    if run.map_kind(system) != "graph":
+        fail(f"{run_dir}: no graph map of {system} (maps/{system}/graph.json missing)")
+    plot = plot_graph_map(run, system, output.parent, name=output.stem)
+    if not plot.files:
+        fail(plot.note)
+    console.print(f"wrote {plot.png}" + (f" ({plot.note})" if plot.note else ""), highlight=False)
 
 
 @app.command()

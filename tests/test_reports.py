@@ -8,16 +8,24 @@ import csv
 import io
 import json
 import math
+import re
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from crafted_run import write_crafted_run
 
 from reports import stats
 from reports.plots import graph_layout, grid_layer, run_plots
+from reports.report import make_report, reproduce_command
 from reports.results import Run, RunFormatError
 from reports.tables import cells, latex, markdown_document, table_rows, to_csv
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture
@@ -228,3 +236,96 @@ def test_plots_that_need_the_ground_truth_are_skipped_with_a_note_when_it_is_mis
     assert results["map_metric_grid"].files == [] and "ground_truth/raster.yaml" in results["map_metric_grid"].note
     assert results["map_navtopo"].files and "no ground_truth/" in results["map_navtopo"].note  # placed by anchors
     assert results["planning"].files and results["efficiency"].files
+
+
+# --- the report: files, the page, copies, several runs, bad input ----------------------------
+
+
+def _files(folder):
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_the_report_writes_tables_plots_config_and_a_self_contained_page(crafted):
+    made = make_report([crafted])
+    out = crafted / "report"
+    assert made.out == out and made.notes == []
+    written = set(_files(out))
+    assert {"table.md", "table.csv", "table.tex", "config.yaml", "report.html"} <= written
+    for name in ("map_navtopo", "map_metric_grid", "trajectories_navtopo", "planning", "efficiency", "map_growth"):
+        assert {f"plots/{name}.png", f"plots/{name}.svg"} <= written
+    assert yaml.safe_load((out / "config.yaml").read_text()) == json.loads((crafted / "manifest.json").read_text())["config"]
+    page = made.html.read_text()
+    assert page.count('<img src="data:image/png;base64,') == len([f for f in written if f.endswith(".png")]) == 7
+    assert '<table class="results" id="table1">' in page and "<td>5/6 (83 %) [" in page
+    # nothing is loaded from anywhere: no external src or href, a policy that forbids it, no script
+    assert not re.search(r'(src|href)="(?!data:)', page) and "<script" not in page
+    assert "default-src 'none'" in page
+    # the manifest and the command that reproduces the run; no path of this machine's folder
+    assert (
+        "navtopo-bench run crafted --systems navtopo,metric_grid --seed 7 --trials 6 --setting precise "
+        "--initial-pose-error 0.5,10 --stop-tolerance 0.35 --config config.yaml"
+    ) in page
+    assert "0123456789abcdef" in page and "crafted" in page
+    assert str(crafted) not in page
+
+
+def test_a_report_made_from_a_copied_folder_is_the_same_file_for_file(crafted, tmp_path):
+    make_report([crafted])
+    copy = tmp_path / "elsewhere" / "copied-run"
+    shutil.copytree(crafted, copy, ignore=shutil.ignore_patterns("report"))
+    make_report([copy])
+    original, copied = _files(crafted / "report"), _files(copy / "report")
+    assert set(original) == set(copied)
+    differing = [name for name in original if original[name] != copied[name]]
+    assert differing == []
+
+
+def test_several_runs_make_one_combined_report(tmp_path):
+    a = write_crafted_run(tmp_path / "a", seed=7)
+    b = write_crafted_run(tmp_path / "b", seed=8)
+    c = write_crafted_run(tmp_path / "c", seed=7, scenario="other")
+    made = make_report([a, b, c], tmp_path / "combined")
+    assert [s.key for s in made.sections] == ["crafted-precise-s7", "crafted-precise-s8", "other-precise-s7"]
+    written = set(_files(tmp_path / "combined"))
+    assert {"plots/planning.png", "plots/efficiency.svg", "config-crafted-precise-s8.yaml"} <= written
+    assert {"plots/other-precise-s7/map_navtopo.png", "plots/crafted-precise-s7/trajectories_metric_grid.svg"} <= written
+    assert not (a / "report").exists()  # with --out nothing is written into the runs
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "combined" / "table.csv").read_text())))
+    assert [(r["scenario"], r["system"], r["trials"]) for r in rows if r["source"] == "measured"] == [
+        ("crafted", "navtopo", "12"),
+        ("crafted", "metric_grid", "12"),
+        ("other", "navtopo", "6"),
+        ("other", "metric_grid", "6"),
+    ]
+    page = made.html.read_text()
+    assert page.count("navtopo-bench run ") == 3 and "--seed 8" in page and "--config config-other-precise-s7.yaml" in page
+
+
+def test_a_scenario_file_outside_the_bundled_ones_is_named_by_its_path(crafted):
+    manifest = json.loads((crafted / "manifest.json").read_text())
+    manifest["scenario"]["file"] = "my scenes/office.yaml"
+    manifest["setting_override"] = None
+    manifest["protocol"]["goals"] = "native"
+    (crafted / "manifest.json").write_text(json.dumps(manifest))
+    command = reproduce_command(Run.load(crafted), "config.yaml")
+    assert command.startswith("navtopo-bench run 'my scenes/office.yaml' --systems navtopo,metric_grid --seed 7 --trials 6 ")
+    assert "--setting" not in command and "--goals native" in command
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda root: (root / "summary.json").write_text("{not json"), "summary.json: not readable JSON"),
+        (lambda root: (root / "manifest.json").write_text('{"systems": []}'), "manifest.json: scenario: Field required"),
+    ],
+)
+def test_the_report_command_fails_on_a_damaged_folder_with_one_line(crafted, damage, message):
+    damage(crafted)
+    result = subprocess.run(
+        [sys.executable, "-m", "runners.cli", "report", str(crafted)], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and message in lines[0] and str(crafted) in lines[0]
+    assert "Traceback" not in result.stderr + result.stdout
+    assert not (crafted / "report").exists()
