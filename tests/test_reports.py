@@ -329,3 +329,15 @@ def test_the_report_command_fails_on_a_damaged_folder_with_one_line(crafted, dam
     assert len(lines) == 1 and message in lines[0] and str(crafted) in lines[0]
     assert "Traceback" not in result.stderr + result.stdout
     assert not (crafted / "report").exists()
+
+
+def test_reports_import_nothing_of_the_runners_scenarios_or_systems():
+    import ast
+
+    forbidden = {"runners", "scenarios", "navtopo", "baselines"}
+    for path in sorted((ROOT / "reports").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            assert not {n.split(".")[0] for n in names} & forbidden, f"{path.name} imports {names}"
