@@ -139,6 +139,11 @@ def page(report: Report) -> str:
         '<meta name="viewport" content="width=device-width, initial-scale=1">',
         f"<title>{_e(title)}</title><style>{STYLE}</style></head><body>",
         f"<h1>{_e(title)}</h1>",
+    ]
+    if report.study:
+        parts.append(f"<h2>{_e(report.study_title or 'Study')}</h2>")
+        parts += [figure_html(p, "plots/") for p in report.study]
+    parts += [
         "<h2>Table 1: memory, planning time and efficiency</h2>",
         table_html(report),
         "<p>Also as <code>table.md</code>, <code>table.csv</code> and <code>table.tex</code> beside this page.</p>",

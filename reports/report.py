@@ -18,6 +18,7 @@ from a copied folder is byte for byte the one made from the original.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
@@ -46,6 +47,8 @@ class Report:
     sections: list[RunSection]
     combined: list[PlotResult]
     files: list[Path]
+    study: list[PlotResult] = field(default_factory=list)
+    study_title: str = ""
 
     @property
     def html(self) -> Path:
@@ -55,7 +58,7 @@ class Report:
     def notes(self) -> list[str]:
         """Why any plot was skipped or drawn without the GT map, one line each."""
         lines = [f"{s.key}: {p.name}: {p.note}" for s in self.sections for p in s.plots if p.note]
-        return lines + [f"{p.name}: {p.note}" for p in self.combined if p.note]
+        return lines + [f"{p.name}: {p.note}" for p in self.combined + self.study if p.note]
 
 
 def run_key(run: Run) -> str:
@@ -96,9 +99,13 @@ def _quote(text: str) -> str:
     return text if re.fullmatch(r"[A-Za-z0-9_./:=,+-]+", text) else "'" + text.replace("'", "'\\''") + "'"
 
 
-def make_report(run_dirs: list[Path], out: Path | None = None) -> Report:
+Study = Callable[[list[Run], Path], list[PlotResult]]
+
+
+def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | None = None, study_title: str = "") -> Report:
     """Load every run (``RunFormatError`` on a damaged folder, before anything is written) and
-    write the report under ``out`` (default ``run_dirs[0]/report``)."""
+    write the report under ``out`` (default ``run_dirs[0]/report``). ``study(runs, out)`` (e.g.
+    ``reports.sweep.write_scaling``) adds its files and plots, shown first on the page."""
     runs = [Run.load(d) for d in run_dirs]
     out = Path(out) if out is not None else Path(run_dirs[0]) / "report"
     out.mkdir(parents=True, exist_ok=True)
@@ -124,7 +131,10 @@ def make_report(run_dirs: list[Path], out: Path | None = None) -> Report:
         combined = [plot_planning(groups, plots_dir), plot_efficiency(groups, plots_dir)]
     for plot in [p for s in sections for p in s.plots] + combined:
         files += plot.files
-    report = Report(out, sections, combined, files)
+    study_plots = study(runs, out) if study is not None else []
+    for plot in study_plots:
+        files += plot.files
+    report = Report(out, sections, combined, files, study_plots, study_title)
     write_html(report)
     report.files.append(report.html)
     return report

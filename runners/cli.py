@@ -446,6 +446,84 @@ def config(system: Annotated[str | None, typer.Argument(help="a system name; all
 
 
 # ---------------------------------------------------------------------------------------------
+# studies
+
+sweep_app = typer.Typer(help="Studies over generated sizes (scaling) and odometry noise (drift).", no_args_is_help=True)
+app.add_typer(sweep_app, name="sweep")
+
+
+@sweep_app.command("scaling")
+def sweep_scaling(
+    lengths: Annotated[str, typer.Option(help="total corridor lengths (m) of the generated buildings")] = "150,300,600,1200,2400",
+    systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
+    trials: Annotated[int, typer.Option(help="navigation trials per size", min=0)] = 5,
+    seed: Annotated[int, typer.Option(help="seed of the generated buildings")] = 31,
+    route_factor: Annotated[
+        float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
+    ] = 1.0,
+    setting: Annotated[str, typer.Option(help="precise or noisy")] = "precise",
+    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    out: Annotated[Path, typer.Option(help="the sweep's folder: scenarios/, <length>m/ runs, report/")] = Path(
+        "results/sweep_scaling"
+    ),
+) -> None:
+    """Map and navigate generated buildings of growing size; planning time and memory against size.
+
+    One run per length under OUT/<length>m (a finished one is kept, an interrupted one resumed: run
+    the same command again), then OUT/report/: scaling.md and scaling.csv (fitted growth exponents),
+    the log-log plot, and the usual tables, plots and report.html of all the runs."""
+    from runners.protocol import SETTINGS
+    from runners.run import RunDir, execute
+    from runners.sweep import ScalingOptions, run_scaling
+    from runners.systems import system_names
+
+    try:
+        length_list = [float(v) for v in lengths.split(",") if v.strip()]
+        if not length_list or min(length_list) < 20.0:
+            raise ValueError
+    except ValueError:
+        fail(f"--lengths: expected comma-separated lengths of at least 20 m, got {lengths!r}")
+    names = [s.strip() for s in systems.split(",") if s.strip()]
+    unknown = [s for s in names if s not in system_names()]
+    if unknown:
+        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
+    if setting not in SETTINGS:
+        fail(f"--setting: unknown setting {setting!r} (choose from {', '.join(SETTINGS)})")
+    options = ScalingOptions(
+        lengths=length_list,
+        systems=names,
+        trials=trials,
+        seed=seed,
+        route_factor=route_factor,
+        setting=setting,
+        workers=workers,
+        out=out,
+    )
+
+    def run_one(scenario, run_options):
+        _run_one(scenario, run_options, execute)
+        return RunDir(run_options.out or run_options.resume)
+
+    folders = run_scaling(options, run_one)
+    _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
+
+
+def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:
+    from reports.report import make_report
+    from reports.results import RunFormatError
+    from reports.sweep import write_scaling
+
+    try:
+        made = make_report(folders, out, study=write_scaling, study_title=title)
+    except RunFormatError as exc:
+        fail(str(exc))
+    for note in made.notes:
+        console.print(f"note: {note}", highlight=False)
+    sys.stdout.write((out / f"{study}.md").read_text())
+    console.print(f"report: [bold]{made.html}[/]", highlight=False)
+
+
+# ---------------------------------------------------------------------------------------------
 # place recognition
 
 

@@ -46,8 +46,9 @@ ANCHORS = [[1.0, 1.0, 0.5, math.pi / 2], [2.0, 3.0, 0.5, 0.0]]
 HINTS = [[0.5, -0.5, 0.0], [0.5, -2.5, -math.pi / 2]]  # odometry poses (map frame): exactly the anchors (precise)
 
 
-def _trial(system: str, index: int, spec: tuple, seed: int) -> dict:
+def _trial(system: str, index: int, spec: tuple, seed: int, planning_scale: float = 1.0) -> dict:
     success, reason, efficiency, first, samples = spec
+    first, samples = first * planning_scale, [v * planning_scale for v in samples]
     shortest = 2.0 + index
     return {
         "system": system,
@@ -73,15 +74,28 @@ def _trial(system: str, index: int, spec: tuple, seed: int) -> dict:
     }
 
 
-def write_crafted_run(root: Path, seed: int = 7, memory_scale: float = 1.0, scenario: str = "crafted") -> Path:
-    """Write the crafted folder at ``root``; returns it. ``memory_scale`` multiplies every memory figure."""
+def write_crafted_run(
+    root: Path,
+    seed: int = 7,
+    memory_scale: float = 1.0,
+    scenario: str = "crafted",
+    planning_scale: float = 1.0,
+    corridor_length_m: float = 4.0,
+) -> Path:
+    """Write the crafted folder at ``root``; returns it. ``memory_scale`` multiplies every memory
+    figure, ``planning_scale`` every planning time."""
     root.mkdir(parents=True, exist_ok=True)
     systems = ["navtopo", "metric_grid"]
     dump = lambda path, data: (path.parent.mkdir(parents=True, exist_ok=True), path.write_text(json.dumps(data, indent=1)))  # noqa: E731
     dump(
         root / "manifest.json",
         {
-            "scenario": {"name": scenario, "file": f"scenarios/bundled/{scenario}.yaml", "bounds_m": [-1.0, -2.0, 5.0, 2.0]},
+            "scenario": {
+                "name": scenario,
+                "file": f"scenarios/bundled/{scenario}.yaml",
+                "bounds_m": [-1.0, -2.0, 5.0, 2.0],
+                "corridor_length_m": corridor_length_m,
+            },
             "systems": systems,
             "seed": seed,
             "setting": "precise",
@@ -97,8 +111,8 @@ def write_crafted_run(root: Path, seed: int = 7, memory_scale: float = 1.0, scen
             "created": "2026-01-01T00:00:00+00:00",
         },
     )
-    records = [_trial("navtopo", i, t, seed) for i, t in enumerate(NAVTOPO_TRIALS)]
-    records += [_trial("metric_grid", i, t, seed) for i, t in enumerate(METRIC_TRIALS)]
+    records = [_trial("navtopo", i, t, seed, planning_scale) for i, t in enumerate(NAVTOPO_TRIALS)]
+    records += [_trial("metric_grid", i, t, seed, planning_scale) for i, t in enumerate(METRIC_TRIALS)]
     duplicate = dict(records[0], success=False, reason="written twice: the first record counts")
     lines = [json.dumps(r) for r in records] + [json.dumps(duplicate)]
     (root / "trials.jsonl").write_text("\n".join(lines) + "\n" + '{"system": "navtopo", "tri')  # torn last line
