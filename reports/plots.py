@@ -100,15 +100,25 @@ def draw_ground_truth(ax: plt.Axes, gt: GroundTruth, light: bool = False) -> Non
 
 
 def map_axes(gt: GroundTruth | None, run: Run, width: float = 10.0) -> tuple[plt.Figure, plt.Axes]:
-    bounds = run.manifest.scenario.bounds_m
-    if gt is not None and gt.image is not None:
-        x0, x1, y0, y1 = gt.extent
-    elif bounds:
-        x0, y0, x1, y1 = bounds
-    else:
-        x0, y0, x1, y1 = 0.0, 0.0, 1.0, 1.0
+    x0, x1, y0, y1 = map_bounds(gt, run)
     height = min(14.0, max(3.5, width * (y1 - y0) / max(x1 - x0, 1e-6) + 1.2))
     fig, ax = plt.subplots(figsize=(width, height))
+    setup_map_axes(ax, gt, run)
+    return fig, ax
+
+
+def map_bounds(gt: GroundTruth | None, run: Run) -> tuple[float, float, float, float]:
+    """(xmin, xmax, ymin, ymax): the GT raster's extent, else the scenario's bounds."""
+    bounds = run.manifest.scenario.bounds_m
+    if gt is not None and gt.image is not None:
+        return gt.extent
+    if bounds:
+        return bounds[0], bounds[2], bounds[1], bounds[3]
+    return 0.0, 1.0, 0.0, 1.0
+
+
+def setup_map_axes(ax: plt.Axes, gt: GroundTruth | None, run: Run) -> None:
+    x0, x1, y0, y1 = map_bounds(gt, run)
     if gt is not None and gt.image is not None:
         draw_ground_truth(ax, gt)
     ax.set_xlim(x0, x1)
@@ -116,7 +126,6 @@ def map_axes(gt: GroundTruth | None, run: Run, width: float = 10.0) -> tuple[plt
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
-    return fig, ax
 
 
 def finish_map(fig: plt.Figure, ax: plt.Axes, columns: int = 4) -> None:
@@ -211,6 +220,21 @@ def graph_layout(run: Run, system: str) -> GraphLayout:
     return GraphLayout(poses, edges, walls, placed_by)
 
 
+def draw_graph_layout(ax: plt.Axes, layout: GraphLayout) -> None:
+    """Each location's walls (one colour per location), the edges and the locations, with legend entries."""
+    poses = layout.poses
+    tab = matplotlib.colormaps["tab20"]
+    for i, walls in enumerate(layout.walls):
+        if len(walls):
+            ax.scatter(walls[:, 0], walls[:, 1], s=0.8, color=tab(i % 20), alpha=0.8, linewidths=0, zorder=3, rasterized=True)
+    for u, v in layout.edges:
+        ax.plot(poses[[u, v], 0], poses[[u, v], 1], color="tab:red", linewidth=1.1, zorder=4)
+    ax.scatter(poses[:, 0], poses[:, 1], s=16, color="tab:red", edgecolors="black", linewidths=0.4, zorder=5)
+    ax.plot([], [], "o", color="tab:red", markeredgecolor="black", label=f"locations ({len(poses)})")
+    ax.plot([], [], color="tab:red", label=f"edges ({len(layout.edges)})")
+    ax.scatter([], [], s=6, color="gray", label="walls in each location's grid (one colour per location)")
+
+
 def plot_graph_map(run: Run, system: str, folder: Path, name: str | None = None) -> PlotResult:
     result = PlotResult(name or f"map_{system}", f"{system}: the topological graph over the GT map")
     try:
@@ -222,16 +246,7 @@ def plot_graph_map(run: Run, system: str, folder: Path, name: str | None = None)
     mapping = run.mapping.get(system)
     poses = layout.poses
     fig, ax = map_axes(gt, run)
-    tab = matplotlib.colormaps["tab20"]
-    for i, walls in enumerate(layout.walls):
-        if len(walls):
-            ax.scatter(walls[:, 0], walls[:, 1], s=0.8, color=tab(i % 20), alpha=0.8, linewidths=0, zorder=3, rasterized=True)
-    for u, v in layout.edges:
-        ax.plot(poses[[u, v], 0], poses[[u, v], 1], color="tab:red", linewidth=1.1, zorder=4)
-    ax.scatter(poses[:, 0], poses[:, 1], s=16, color="tab:red", edgecolors="black", linewidths=0.4, zorder=5)
-    ax.plot([], [], "o", color="tab:red", markeredgecolor="black", label=f"locations ({len(poses)})")
-    ax.plot([], [], color="tab:red", label=f"edges ({len(layout.edges)})")
-    ax.scatter([], [], s=6, color="gray", label="walls in each location's grid (one colour per location)")
+    draw_graph_layout(ax, layout)
     where = (
         "locations at the true poses where they were made"
         if layout.placed_by == "anchor"
@@ -307,18 +322,11 @@ def grid_layer(run: Run, system: str) -> GridLayer:
     )
 
 
-def plot_grid_map(run: Run, system: str, folder: Path) -> PlotResult:
-    result = PlotResult(f"map_{system}", f"{system}: the occupancy grid over the GT map")
-    try:
-        layer = grid_layer(run, system)
-    except MapFormatError as exc:
-        result.note = str(exc)
-        return result
+def draw_grid_layer(ax: plt.Axes, layer: GridLayer) -> None:
+    """Occupied and free cells, placed in the scenario frame, with legend entries."""
     rgba = np.zeros((*layer.occupied.shape, 4))
     rgba[layer.free] = (0.35, 0.6, 0.95, 0.35)
     rgba[layer.occupied] = (0.05, 0.2, 0.75, 0.95)
-    h, w = layer.occupied.shape
-    fig, ax = map_axes(run.ground_truth, run)
     ax.imshow(
         rgba,
         origin="upper",
@@ -329,6 +337,18 @@ def plot_grid_map(run: Run, system: str, folder: Path) -> PlotResult:
     )
     ax.plot([], [], "s", color=(0.05, 0.2, 0.75), label="occupied cells")
     ax.plot([], [], "s", color=(0.35, 0.6, 0.95, 0.5), label="free cells")
+
+
+def plot_grid_map(run: Run, system: str, folder: Path) -> PlotResult:
+    result = PlotResult(f"map_{system}", f"{system}: the occupancy grid over the GT map")
+    try:
+        layer = grid_layer(run, system)
+    except MapFormatError as exc:
+        result.note = str(exc)
+        return result
+    h, w = layer.occupied.shape
+    fig, ax = map_axes(run.ground_truth, run)
+    draw_grid_layer(ax, layer)
     mapping = run.mapping.get(system)
     extra = f", {mapping.map_bytes / 1e6:.2f} MB" if mapping is not None and mapping.map_bytes else ""
     ax.set_title(f"{system} on {run.scenario} ({run.setting}): {w}×{h} cells of {layer.resolution:g} m{extra}", fontsize=9)

@@ -1,10 +1,15 @@
-"""The scaling study, from its run folders alone: planning time and every memory part against the
-environment size (the scenario's corridor length in each manifest), log-log, with fitted growth
-exponents (``figure ≈ c · length^k``, least squares on the logarithms).
+"""The sweeps' studies from their run folders alone: scaling and drift.
 
-Each run contributes one point per system: planning over every call (median) and the first plan
-of each trial (median) from its trials; the memory breakdown (map, localization, derived, model,
-total: the largest at any trial), RSS growth and the saved map's bytes on disk from its summary.
+Scaling: planning time and every memory part against the environment size (the scenario's
+corridor length in each manifest), log-log, with fitted growth exponents (``figure ≈ c · length^k``,
+least squares on the logarithms). Each run contributes one point per system: planning over every
+call (median) and the first plan of each trial (median) from its trials; the memory breakdown
+(map, localization, derived, model, total: the largest at any trial), RSS growth and the saved
+map's bytes on disk from its summary.
+
+Drift: one scenario under growing odometry noise (one run per level): success, efficiency and map
+quality (wall precision against the GT raster; a graph's edge error) per level, and the paper's
+Figure 1 from the noisiest run: the metric grid over the GT map beside the graph of locations.
 """
 
 from __future__ import annotations
@@ -20,7 +25,18 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from reports.plots import PlotResult, colour, save  # noqa: E402
+from reports.plots import (  # noqa: E402
+    MapFormatError,
+    PlotResult,
+    colour,
+    draw_graph_layout,
+    draw_grid_layer,
+    graph_layout,
+    grid_layer,
+    map_bounds,
+    save,
+    setup_map_axes,
+)
 from reports.results import MEMORY_PARTS, Run  # noqa: E402
 from reports.tables import Row, measured_rows  # noqa: E402
 
@@ -182,3 +198,180 @@ def write_scaling(runs: list[Run], out: Path) -> list[PlotResult]:
     (out / "scaling.md").write_text(scaling_markdown(runs))
     (out / "scaling.csv").write_text(scaling_csv(runs))
     return [plot_scaling(runs, out / "plots")]
+
+
+# ---------------------------------------------------------------------------------------------
+# drift: one scenario under growing odometry noise
+
+WALL_TOLERANCE_M = 0.25  # a map's wall cell this close to a GT wall or obstacle is in its place
+
+
+def wall_precision(run: Run, system: str) -> float | None:
+    """Share of a saved map's wall cells (scenario frame) within ``WALL_TOLERANCE_M`` of a GT wall or
+    obstacle cell: corridors mapped twice under drift put walls in free space and lower it. A grid
+    is placed by the map frame, so drift shows; a graph's locations at their true anchors, so this
+    measures each location's own grid (a graph has no global frame to drift). None without the GT
+    raster or a drawable map."""
+    gt = run.ground_truth
+    if gt is None or gt.image is None:
+        return None
+    try:
+        kind = run.map_kind(system)
+        if kind == "grid":
+            layer = grid_layer(run, system)
+            points = layer.centres(layer.occupied)
+        elif kind == "graph":
+            walls = graph_layout(run, system).walls
+            points = np.concatenate(walls) if walls else np.zeros((0, 2))
+        else:
+            return None
+    except MapFormatError:
+        return None
+    if not len(points):
+        return None
+    from scipy.ndimage import distance_transform_edt
+
+    resolution = gt.raster.resolution
+    distance = distance_transform_edt(~gt.mask("wall", "obstacle")) * resolution  # to the nearest GT wall cell
+    x0, _, y0, _ = gt.extent
+    h, w = gt.image.shape
+    cols = np.floor((points[:, 0] - x0) / resolution).astype(np.int64)
+    rows = h - 1 - np.floor((points[:, 1] - y0) / resolution).astype(np.int64)
+    inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
+    near = np.zeros(len(points), dtype=bool)  # outside the raster: beyond every wall, misplaced
+    near[inside] = distance[rows[inside], cols[inside]] <= WALL_TOLERANCE_M + 1e-9
+    return float(near.mean())
+
+
+@dataclass
+class DriftPoint:
+    level: str
+    system: str
+    success_rate: float | None
+    efficiency: float | None
+    wall_precision: float | None
+    edge_error_median_m: float | None
+    trials: int
+
+
+def drift_data(runs: list[Run]) -> list[DriftPoint]:
+    """One point per (run, system), in the order of the runs (levels as given to the sweep)."""
+    out = []
+    for run in runs:
+        for row in measured_rows([run]):
+            mapping = run.mapping.get(row.system)
+            edge = mapping.edge_error.translation_m.median if mapping is not None and mapping.edge_error else None
+            out.append(
+                DriftPoint(
+                    run.setting, row.system, row.success_rate, row.efficiency, wall_precision(run, row.system), edge, row.trials
+                )
+            )
+    return out
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "–" if value is None else f"{value:.{digits}f}"
+
+
+def drift_markdown(runs: list[Run]) -> str:
+    lines = [
+        "# Drift: success, efficiency and map quality per odometry-noise level",
+        "",
+        "| level | system | trials | success rate | efficiency | wall precision | edge error median (m) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for p in drift_data(runs):
+        lines.append(
+            f"| {p.level} | {p.system} | {p.trials} | {_fmt(p.success_rate, 2)} | {_fmt(p.efficiency)} | "
+            f"{_fmt(p.wall_precision)} | {_fmt(p.edge_error_median_m)} |"
+        )
+    lines += [
+        "",
+        f"- wall precision: share of the saved map's wall cells within {WALL_TOLERANCE_M} m of a GT wall or obstacle "
+        "(a grid placed by the map frame, so drift shows; a graph's locations at their true anchors: each location's own grid).",
+        "- edge error: a graph's edges against the true relative poses (mapping report).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def drift_csv(runs: list[Run]) -> str:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    fields = ["level", "system", "trials", "success_rate", "efficiency", "wall_precision", "edge_error_median_m"]
+    writer.writerow(fields)
+    for p in drift_data(runs):
+        writer.writerow(["" if getattr(p, f) is None else getattr(p, f) for f in fields])
+    return buffer.getvalue()
+
+
+def plot_drift(runs: list[Run], folder: Path, name: str = "drift") -> PlotResult:
+    result = PlotResult(name, "Drift: success, efficiency and map quality per odometry-noise level")
+    points = drift_data(runs)
+    if not points:
+        result.note = "no runs"
+        return result
+    levels = list(dict.fromkeys(p.level for p in points))
+    systems = list(dict.fromkeys(p.system for p in points))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
+    panels = [("success_rate", "success rate"), ("efficiency", "efficiency (successes)"), ("wall_precision", "wall precision")]
+    for ax, (key, title) in zip(axes, panels, strict=True):
+        for k, system in enumerate(systems):
+            ys = [next((getattr(p, key) for p in points if p.level == level and p.system == system), None) for level in levels]
+            xs = [i for i, y in enumerate(ys) if y is not None]
+            if xs:
+                ax.plot(xs, [ys[i] for i in xs], marker=MARKERS[k % len(MARKERS)], color=colour(system, systems), label=system)
+        ax.set_xticks(range(len(levels)), levels)
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_title(title, fontsize=9)
+        ax.grid(alpha=0.25)
+    axes[0].set_xlabel("odometry noise")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    result.caption = (
+        f"levels as run (runners/protocol.py settings); wall precision: share of map wall cells within {WALL_TOLERANCE_M} m "
+        "of a GT wall (a graph's locations at their true anchors)"
+    )
+    result.files = save(fig, folder, name)
+    return result
+
+
+def plot_figure1(runs: list[Run], folder: Path, name: str = "figure1") -> PlotResult:
+    """The paper's Figure 1 made real, from the noisiest run: the metric grid built under drift over
+    the GT map (placed by the map frame, so doubled corridors show) beside the graph of locations."""
+    result = PlotResult(name, "Figure 1: the metric grid under drift beside the graph of locations")
+    if not runs:
+        result.note = "no runs"
+        return result
+    run = runs[-1]
+    grid = next((s for s in run.systems if run.map_kind(s) == "grid"), None)
+    graph = next((s for s in run.systems if run.map_kind(s) == "graph"), None)
+    if grid is None or graph is None or run.ground_truth is None:
+        result.note = f"{run.label}: needs a grid map, a graph map and ground_truth/"
+        return result
+    try:
+        layer, layout = grid_layer(run, grid), graph_layout(run, graph)
+    except MapFormatError as exc:
+        result.note = str(exc)
+        return result
+    x0, x1, y0, y1 = map_bounds(run.ground_truth, run)
+    fig, axes = plt.subplots(1, 2, figsize=(14, min(12.0, max(4.0, 7 * (y1 - y0) / max(x1 - x0, 1e-6) + 1.5))))
+    for ax in axes:
+        setup_map_axes(ax, run.ground_truth, run)
+    draw_grid_layer(axes[0], layer)
+    draw_graph_layout(axes[1], layout)
+    axes[0].set_title(f"{grid}: the global grid built with {run.setting} odometry, over the GT map", fontsize=9)
+    axes[1].set_title(f"{graph}: locations at the true poses where they were made, edges, each location's walls", fontsize=9)
+    for ax in axes:
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=7, frameon=False)
+    fig.tight_layout()
+    result.caption = f"{run.label}: where drift bends a global map, a graph of locations keeps each place's own frame"
+    result.files = save(fig, folder, name)
+    return result
+
+
+def write_drift(runs: list[Run], out: Path) -> list[PlotResult]:
+    """drift.md, drift.csv and the plots (PNG, SVG) under ``out``; returns the plots for the page."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "drift.md").write_text(drift_markdown(runs))
+    (out / "drift.csv").write_text(drift_csv(runs))
+    return [plot_drift(runs, out / "plots"), plot_figure1(runs, out / "plots")]

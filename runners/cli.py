@@ -508,13 +508,51 @@ def sweep_scaling(
     _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
 
 
+@sweep_app.command("drift")
+def sweep_drift(
+    scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")] = "loop_office",
+    levels: Annotated[str, typer.Option(help="odometry-noise settings in order: off, moderate, strong")] = "precise,noisy,strong",
+    systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
+    trials: Annotated[int, typer.Option(help="navigation trials per level", min=0)] = 5,
+    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    out: Annotated[Path, typer.Option(help="the sweep's folder: <level>/ runs, report/")] = Path("results/sweep_drift"),
+) -> None:
+    """One scenario under odometry noise off, moderate and strong: success, efficiency, map quality.
+
+    One run per level under OUT/<level> (a finished one is kept, an interrupted one resumed), then
+    OUT/report/: drift.md and drift.csv, the per-level plot, Figure 1 (the metric grid built under
+    the strongest drift over the GT map beside the graph of locations) and the usual report."""
+    from runners.protocol import SETTINGS
+    from runners.run import RunDir, execute
+    from runners.sweep import DriftOptions, run_drift
+    from runners.systems import system_names
+
+    level_list = [v.strip() for v in levels.split(",") if v.strip()]
+    bad = [v for v in level_list if v not in SETTINGS]
+    if bad or not level_list:
+        fail(f"--levels: unknown setting(s) {', '.join(bad) or repr(levels)} (choose from {', '.join(SETTINGS)})")
+    names = [s.strip() for s in systems.split(",") if s.strip()]
+    unknown = [s for s in names if s not in system_names()]
+    if unknown:
+        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
+    _load(scenario)  # a bad scenario is one line before any work
+    options = DriftOptions(scenario=scenario, levels=level_list, systems=names, trials=trials, workers=workers, out=out)
+
+    def run_one(loaded, run_options):
+        _run_one(loaded, run_options, execute)
+        return RunDir(run_options.out or run_options.resume)
+
+    folders = run_drift(options, run_one)
+    _sweep_report(folders, out / "report", "drift", "Drift: the same scenario under growing odometry noise")
+
+
 def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:
     from reports.report import make_report
     from reports.results import RunFormatError
-    from reports.sweep import write_scaling
+    from reports.sweep import write_drift, write_scaling
 
     try:
-        made = make_report(folders, out, study=write_scaling, study_title=title)
+        made = make_report(folders, out, study={"scaling": write_scaling, "drift": write_drift}[study], study_title=title)
     except RunFormatError as exc:
         fail(str(exc))
     for note in made.notes:

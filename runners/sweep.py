@@ -83,3 +83,45 @@ def run_scaling(
         )
         folders.append(run_one(scenario, run_options).root)
     return folders
+
+
+# ---------------------------------------------------------------------------------------------
+# drift: one scenario under odometry noise off, moderate and strong
+
+DEFAULT_LEVELS = ("precise", "noisy", "strong")  # runners.protocol.SETTINGS: off, moderate, strong
+
+
+@dataclass
+class DriftOptions:
+    scenario: str = "loop_office"
+    levels: list[str] = field(default_factory=lambda: list(DEFAULT_LEVELS))
+    systems: list[str] = field(default_factory=lambda: list(DEFAULT_SYSTEMS))
+    trials: int = 5
+    workers: int = 1
+    out: Path = Path("results/sweep_drift")
+    protocol: TrialProtocol = field(default_factory=TrialProtocol)
+
+
+def run_drift(options: DriftOptions, run_one: Callable[[Scenario, RunOptions], RunDir] | None = None) -> list[Path]:
+    """The scenario once per level into ``<out>/<level>/`` (a finished level kept, an interrupted one
+    resumed); the same seed, route and trials, only the noise differs. Returns the run folders."""
+    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
+    scenario = load_scenario(options.scenario)
+    folders = []
+    for level in options.levels:
+        folder = options.out / level
+        if (folder / "summary.json").is_file():
+            folders.append(folder)
+            continue
+        resume = folder if (folder / "manifest.json").is_file() else None
+        run_options = RunOptions(
+            systems=list(options.systems),
+            trials=options.trials,
+            out=None if resume else folder,
+            resume=resume,
+            workers=options.workers,
+            setting=level,
+            protocol=options.protocol,
+        )
+        folders.append(run_one(scenario, run_options).root)
+    return folders

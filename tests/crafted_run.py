@@ -81,6 +81,7 @@ def write_crafted_run(
     scenario: str = "crafted",
     planning_scale: float = 1.0,
     corridor_length_m: float = 4.0,
+    setting: str = "precise",
 ) -> Path:
     """Write the crafted folder at ``root``; returns it. ``memory_scale`` multiplies every memory
     figure, ``planning_scale`` every planning time."""
@@ -98,8 +99,8 @@ def write_crafted_run(
             },
             "systems": systems,
             "seed": seed,
-            "setting": "precise",
-            "setting_override": "precise",
+            "setting": setting,
+            "setting_override": setting,
             "odometry_noise": None,
             "range_noise": 0.0,
             "protocol": {"initial_pose_error_xy": 0.5, "initial_pose_error_yaw_deg": 10.0, "stop_tolerance": 0.35},

@@ -7,15 +7,18 @@ from __future__ import annotations
 import csv
 import io
 import math
+import shutil
 
+import numpy as np
 import pytest
 import yaml
 from crafted_run import write_crafted_run
 
+from reports.plots import grid_layer
 from reports.report import make_report
 from reports.results import Run
-from reports.sweep import fit_exponent, scaling_csv, scaling_data, write_scaling
-from runners.sweep import ScalingOptions, run_scaling
+from reports.sweep import fit_exponent, scaling_csv, scaling_data, wall_precision, write_drift, write_scaling
+from runners.sweep import DriftOptions, ScalingOptions, run_drift, run_scaling
 
 SIZES = [150.0, 300.0, 600.0, 1200.0]
 
@@ -104,3 +107,71 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
     run_scaling(options, fake_run)
     assert generated == [30.0, 60.0]
     assert calls == [("scaling_60m.yaml", None, tmp_path / "sweep" / "60m", 2, ["navtopo", "metric_grid"])]
+
+
+# --- drift ------------------------------------------------------------------------------------
+
+
+def test_wall_precision_counts_the_map_walls_near_a_gt_wall(tmp_path):
+    run = write_crafted_run(tmp_path / "run")
+    # the grid's one wall cell lands at (0.05, 0.45), 0.1 m from the corridor's end wall; of the
+    # graph's two, (0.95, 1.55) is inside a wall and (3.05, -0.45) 0.3 m from the obstacle: 1 of 2
+    assert wall_precision(Run.load(run), "metric_grid") == 1.0
+    assert wall_precision(Run.load(run), "navtopo") == 0.5
+    # a drifted grid: the same cell 1.95 m further along the map frame's -y lands mid-corridor at (2.0, 0.0)
+    meta = yaml.safe_load((run / "maps" / "metric_grid" / "map.yaml").read_text())
+    meta["origin"] = [-0.95, -2.45, 0.0]
+    (run / "maps" / "metric_grid" / "map.yaml").write_text(yaml.safe_dump(meta))
+    drifted = Run.load(run)
+    layer = grid_layer(drifted, "metric_grid")
+    assert layer.centres(layer.occupied) == pytest.approx(np.array([[2.0, 0.0]]))
+    assert wall_precision(drifted, "metric_grid") == 0.0
+    shutil.rmtree(run / "ground_truth")
+    assert wall_precision(Run.load(run), "metric_grid") is None
+
+
+def test_the_drift_study_reports_each_level_and_draws_figure_1(tmp_path):
+    folders = [write_crafted_run(tmp_path / level, setting=level) for level in ("precise", "noisy", "strong")]
+    meta = yaml.safe_load((folders[2] / "maps" / "metric_grid" / "map.yaml").read_text())
+    meta["origin"] = [-0.95, -2.45, 0.0]  # the strong run's grid drifted
+    (folders[2] / "maps" / "metric_grid" / "map.yaml").write_text(yaml.safe_dump(meta))
+    made = make_report(folders, tmp_path / "report", study=write_drift, study_title="Drift")
+    text = (tmp_path / "report" / "drift.md").read_text()
+    assert "| precise | metric_grid | 6 | 0.67 | 0.950 | 1.000 | – |" in text
+    assert "| strong | metric_grid | 6 | 0.67 | 0.950 | 0.000 | – |" in text
+    assert "| noisy | navtopo | 6 | 0.83 | 0.800 | 0.500 | – |" in text
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "report" / "drift.csv").read_text())))
+    assert [(r["level"], r["system"]) for r in rows][:3] == [
+        ("precise", "navtopo"),
+        ("precise", "metric_grid"),
+        ("noisy", "navtopo"),
+    ]
+    assert {p.name: p.note for p in made.study} == {"drift": "", "figure1": ""}
+    for name in ("drift", "figure1"):
+        assert (tmp_path / "report" / "plots" / f"{name}.png").is_file() and (
+            tmp_path / "report" / "plots" / f"{name}.svg"
+        ).is_file()
+
+
+def test_run_drift_runs_the_scenario_once_per_level_with_that_setting(tmp_path, monkeypatch):
+    import runners.sweep as sweep
+
+    loaded = []
+    monkeypatch.setattr(sweep, "load_scenario", lambda name: loaded.append(name) or name)
+    calls = []
+
+    def fake_run(scenario, options):
+        calls.append((scenario, options.setting, options.out, options.resume))
+        folder = options.out or options.resume
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "manifest.json").write_text("{}")
+        if options.setting != "strong":
+            (folder / "summary.json").write_text("{}")
+        return sweep.RunDir(folder)
+
+    options = DriftOptions(scenario="tiny", out=tmp_path / "drift")
+    assert run_drift(options, fake_run) == [tmp_path / "drift" / level for level in ("precise", "noisy", "strong")]
+    assert loaded == ["tiny"] and [c[1] for c in calls] == ["precise", "noisy", "strong"]
+    calls.clear()
+    run_drift(options, fake_run)
+    assert calls == [("tiny", "strong", None, tmp_path / "drift" / "strong")]
