@@ -341,3 +341,15 @@ def test_reports_import_nothing_of_the_runners_scenarios_or_systems():
             if isinstance(node, ast.ImportFrom) and node.module:
                 names = [node.module]
             assert not {n.split(".")[0] for n in names} & forbidden, f"{path.name} imports {names}"
+
+
+def test_plot_graph_draws_a_graph_map_as_png_and_svg(crafted, tmp_path):
+    from typer.testing import CliRunner
+
+    from runners.cli import app
+
+    result = CliRunner().invoke(app, ["plot-graph", str(crafted), "-o", str(tmp_path / "graph.png")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "graph.png").stat().st_size > 1000 and (tmp_path / "graph.svg").is_file()
+    result = CliRunner().invoke(app, ["plot-graph", str(crafted), "-o", str(tmp_path / "g.png"), "--system", "metric_grid"])
+    assert result.exit_code == 2 and "no graph map of metric_grid" in result.output
