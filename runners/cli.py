@@ -458,6 +458,7 @@ def sweep_scaling(
     systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
     trials: Annotated[int, typer.Option(help="navigation trials per size", min=0)] = 5,
     seed: Annotated[int, typer.Option(help="seed of the generated buildings")] = 31,
+    building: Annotated[str, typer.Option(help="lattice (corridors round blocks: loops) or tree")] = "lattice",
     route_factor: Annotated[
         float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
     ] = 1.0,
@@ -489,7 +490,10 @@ def sweep_scaling(
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
     if setting not in SETTINGS:
         fail(f"--setting: unknown setting {setting!r} (choose from {', '.join(SETTINGS)})")
+    if building not in ("lattice", "tree"):
+        fail(f"--building: {building!r} is not lattice or tree")
     options = ScalingOptions(
+        building=building,
         lengths=length_list,
         systems=names,
         trials=trials,

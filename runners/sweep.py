@@ -1,8 +1,9 @@
 """``navtopo-bench sweep scaling``: the same study at growing environment sizes.
 
-For each total corridor length a scenario is generated (``scenarios.generators.corridor_tree``:
-orthogonal corridors dressed with door niches, side rooms, furniture and pillars; same seed, same
-building), written as a YAML file under ``<out>/scenarios/`` (so every run can be resumed and
+For each total corridor length a scenario is generated (``--building lattice``, the default:
+``scenarios.lattice.lattice_building``, corridors round blocks, so with loops; ``tree``:
+``scenarios.generators.corridor_tree``; both dressed with door niches, side rooms, furniture and
+pillars; same seed, same building), written as a YAML file under ``<out>/scenarios/`` (so every run can be resumed and
 repeated from its manifest), then run like ``navtopo-bench run`` into ``<out>/<length>m/``: the
 mapping route (an auto tour of ``route_factor`` x the corridor length at least) and a fixed number of
 trials for each system. ``reports.sweep`` then reads those folders alone and plots planning time
@@ -21,9 +22,11 @@ from runners.protocol import TrialProtocol
 from runners.run import RunDir, RunOptions, execute
 from scenarios import Scenario, load_scenario
 from scenarios.generators import corridor_tree
+from scenarios.lattice import lattice_building
 
 DEFAULT_LENGTHS = (150, 300, 600, 1200, 2400)
 DEFAULT_SYSTEMS = ("navtopo", "metric_grid")
+GENERATORS = {"lattice": lattice_building, "tree": corridor_tree}
 
 
 @dataclass
@@ -32,8 +35,11 @@ class ScalingOptions:
     systems: list[str] = field(default_factory=lambda: list(DEFAULT_SYSTEMS))
     trials: int = 5
     seed: int = 31  # the buildings' seed: disjoint from the generated scenes parameters were tuned on
+    building: str = "lattice"  # a GENERATORS name
     route_factor: float = 1.0  # the auto route drives at least this many times the corridor length
-    min_distance_factor: float = 0.3  # trial ends at least this share of the corridor length apart (GT path)
+    # trial ends this far apart (GT path): a share of the corridor length for trees; for a lattice
+    # its generator's default, 40 % of the way across it (a share of the length would not fit)
+    min_distance_factor: float = 0.3
     setting: str | None = "precise"
     workers: int = 1
     out: Path = Path("results/sweep_scaling")
@@ -42,15 +48,15 @@ class ScalingOptions:
 
 def scaling_scenario_file(length: float, options: ScalingOptions) -> Path:
     """Write (once) and return the YAML file of the generated building of ``length`` m."""
-    name = f"scaling_{int(round(length))}m"
+    name = f"scaling_{options.building}_{int(round(length))}m"
     path = options.out / "scenarios" / f"{name}.yaml"
     if not path.is_file():
-        spec = corridor_tree(
+        spec = GENERATORS[options.building](
             length,
             seed=options.seed,
             route_factor=options.route_factor,
             trials=options.trials,
-            min_distance=options.min_distance_factor * length,
+            min_distance=options.min_distance_factor * length if options.building == "tree" else None,
             name=name,
         )
         path.parent.mkdir(parents=True, exist_ok=True)

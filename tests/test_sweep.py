@@ -19,6 +19,7 @@ from reports.report import make_report
 from reports.results import Run
 from reports.sweep import fit_exponent, scaling_csv, scaling_data, wall_precision, write_drift, write_scaling
 from runners.sweep import DriftOptions, ScalingOptions, run_drift, run_scaling
+from scenarios.lattice import lattice_building, lattice_shape
 
 SIZES = [150.0, 300.0, 600.0, 1200.0]
 
@@ -82,7 +83,7 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
         return {"name": kwargs["name"], "length": length}
 
     loaded = []
-    monkeypatch.setattr(sweep, "corridor_tree", fake_tree)
+    monkeypatch.setitem(sweep.GENERATORS, "lattice", fake_tree)
     monkeypatch.setattr(sweep, "load_scenario", lambda path: loaded.append(path) or path)
     calls = []
 
@@ -99,14 +100,14 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
     folders = run_scaling(options, fake_run)
     assert folders == [tmp_path / "sweep" / "30m", tmp_path / "sweep" / "60m"]
     assert generated == [30.0, 60.0]
-    written = yaml.safe_load((tmp_path / "sweep" / "scenarios" / "scaling_30m.yaml").read_text())
-    assert written == {"name": "scaling_30m", "length": 30.0}
-    assert calls[0] == ("scaling_30m.yaml", tmp_path / "sweep" / "30m", None, 2, ["navtopo", "metric_grid"])
+    written = yaml.safe_load((tmp_path / "sweep" / "scenarios" / "scaling_lattice_30m.yaml").read_text())
+    assert written == {"name": "scaling_lattice_30m", "length": 30.0}
+    assert calls[0] == ("scaling_lattice_30m.yaml", tmp_path / "sweep" / "30m", None, 2, ["navtopo", "metric_grid"])
     # again: 30 m is finished and kept, 60 m resumed; no building generated twice
     calls.clear()
     run_scaling(options, fake_run)
     assert generated == [30.0, 60.0]
-    assert calls == [("scaling_60m.yaml", None, tmp_path / "sweep" / "60m", 2, ["navtopo", "metric_grid"])]
+    assert calls == [("scaling_lattice_60m.yaml", None, tmp_path / "sweep" / "60m", 2, ["navtopo", "metric_grid"])]
 
 
 # --- drift ------------------------------------------------------------------------------------
@@ -175,3 +176,30 @@ def test_run_drift_runs_the_scenario_once_per_level_with_that_setting(tmp_path, 
     calls.clear()
     run_drift(options, fake_run)
     assert calls == [("tiny", "strong", None, tmp_path / "drift" / "strong")]
+
+
+# --- the scaling sweep's buildings ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("length", [150.0, 300.0, 600.0, 1200.0, 2400.0])
+def test_a_lattice_totals_the_length_with_blocks_of_a_building(length):
+    nx, ny, block = lattice_shape(length)
+    assert ((ny + 1) * nx + (nx + 1) * ny) * block == pytest.approx(length)
+    assert 12.0 <= block <= 26.0 and nx >= ny >= 1
+
+
+def test_a_lattice_building_has_one_loop_per_block_and_loads(tmp_path):
+    from shapely.ops import unary_union
+
+    from scenarios import load_scenario
+    from scenarios.world import corridor_polygon
+
+    spec = lattice_building(150.0, seed=31, trials=3, name="lattice_test")
+    corridors = unary_union([corridor_polygon(c["points"], c["width"]) for c in spec["world"]["corridors"]])
+    nx, ny, _ = lattice_shape(150.0)
+    assert len(corridors.interiors) == nx * ny  # a ring of corridor round every block
+    path = tmp_path / "lattice.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    scenario = load_scenario(path)
+    assert scenario.summary()["corridor_length_m"] == pytest.approx(150.0)
+    assert len(scenario.trials) == 3 and spec["world"]["rooms"] and spec["world"]["obstacles"]
