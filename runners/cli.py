@@ -524,64 +524,53 @@ def scenario_render(
 
 
 @app.command()
-def report(run_dirs: Annotated[list[Path], typer.Argument(help="results folders of runs")]) -> None:
-    """Tables of one or more runs (Markdown and CSV under <run>/report/), printed as a table."""
-    from reports.tables import write_tables
+def report(
+    run_dirs: Annotated[list[Path], typer.Argument(help="results folders of runs")],
+    out: Annotated[Path | None, typer.Option(help="folder of the report (default: the first RUN_DIR's report/)")] = None,
+) -> None:
+    """Table 1 (table.md, .csv, .tex), plots (PNG and SVG) and a self-contained report.html.
 
-    for run_dir in run_dirs:  # every folder is checked before any table is written
-        _check_summary(run_dir)
-        writable_dir(run_dir / "report", "report")
+    Several RUN_DIRs (scenarios, settings, seeds) make one combined report, written under --out or,
+    without it, under the first RUN_DIR's report/. Reads the results folders only."""
+    from reports.report import make_report
+    from reports.results import RunFormatError
+
+    writable_dir(out if out is not None else run_dirs[0] / "report", "--out" if out is not None else "report")
+    try:
+        made = make_report(run_dirs, out)
+    except RunFormatError as exc:
+        fail(str(exc))
+    except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the runs
+        fail(f"report of {', '.join(map(str, run_dirs))} failed: {type(exc).__name__}: {exc}".replace("\n", " "), code=1)
     for run_dir in run_dirs:
-        try:
-            out = write_tables(run_dir)
-        except OSError as exc:
-            fail(f"{run_dir / 'report'}: cannot be written: {exc.strerror or exc}")
         print_summary(run_dir)
-        console.print(f"tables: {out / 'table.md'}, {out / 'table.csv'}")
-
-
-def _check_summary(run_dir: Path) -> None:
-    """A finished run's summary.json that the tables can read, or one line saying why not."""
-    from reports.tables import rows
-
-    path = run_dir / "summary.json"
-    if not path.is_file():
-        fail(f"{run_dir}: not a finished run folder (summary.json missing)")
-    try:
-        summary = json.loads(path.read_bytes())
-    except OSError as exc:
-        fail(f"{path}: cannot be read: {exc.strerror or exc}")
-    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
-        fail(f"{path}: not valid JSON ({exc})")
-    if not isinstance(summary, dict) or not all(isinstance(s, dict) for s in summary.values()):
-        fail(f"{path}: not a run summary (expected a JSON object of one object per system)")
-    try:
-        rows(run_dir)
-    except (AttributeError, KeyError, TypeError, ValueError) as exc:  # a summary edited by hand
-        fail(f"{path}: unexpected content ({type(exc).__name__}: {exc})")
+    for note in made.notes:
+        console.print(f"note: {note}", highlight=False)
+    console.print(f"tables: {made.out / 'table.md'}, table.csv, table.tex", highlight=False)
+    console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
 
 @app.command("plot-graph")
 def plot_graph_command(
     run_dir: Annotated[Path, typer.Argument(help="a results folder with a NavTopo map")],
-    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG file to write (an SVG is written beside it)")],
+    system: Annotated[str, typer.Option(help="the system whose graph map to draw")] = "navtopo",
 ) -> None:
-    """Draw NavTopo's graph (locations, their walls, edges) over the ground-truth map."""
-    if not (run_dir / "maps" / "navtopo").is_dir():
-        fail(f"{run_dir}: no NavTopo map (maps/navtopo missing)")
+    """Draw a graph map (locations, their walls, edges) over the ground-truth map."""
     writable_file(output, "-o", IMAGE_SUFFIXES)
-    from navtopo.graph import GraphFormatError
-    from reports.graph_plot import plot_graph
-    from scenarios import ScenarioError
+    from reports.plots import plot_graph_map
+    from reports.results import Run, RunFormatError
 
     try:
-        console.print(f"wrote {plot_graph(run_dir, output)}")
-    except (GraphFormatError, ScenarioError) as exc:
+        run = Run.load(run_dir, require_summary=False)
+    except RunFormatError as exc:
         fail(str(exc))
-    except OSError as exc:
-        fail(f"-o {output}: cannot be written: {exc.strerror or exc}")
-    except (ValueError, KeyError, TypeError) as exc:  # a run folder edited by hand
-        fail(f"{run_dir}: cannot be drawn: {type(exc).__name__}: {exc}")
+    if run.map_kind(system) != "graph":
+        fail(f"{run_dir}: no graph map of {system} (maps/{system}/graph.json missing)")
+    plot = plot_graph_map(run, system, output.parent, name=output.stem)
+    if not plot.files:
+        fail(plot.note)
+    console.print(f"wrote {plot.png}" + (f" ({plot.note})" if plot.note else ""), highlight=False)
 
 
 @app.command()
@@ -598,6 +587,126 @@ def config(system: Annotated[str | None, typer.Argument(help="a system name; all
             fail(f"unknown system {name!r} (available: {', '.join(sorted(systems))})")
     data = {name: systems[name].default_config().model_dump(mode="json") for name in names}
     sys.stdout.write(yaml.safe_dump(data, sort_keys=False))
+
+
+# ---------------------------------------------------------------------------------------------
+# studies
+
+sweep_app = typer.Typer(help="Studies over generated sizes (scaling) and odometry noise (drift).", no_args_is_help=True)
+app.add_typer(sweep_app, name="sweep")
+
+
+@sweep_app.command("scaling")
+def sweep_scaling(
+    lengths: Annotated[str, typer.Option(help="total corridor lengths (m) of the generated buildings")] = "150,300,600,1200,2400",
+    systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
+    trials: Annotated[int, typer.Option(help="navigation trials per size", min=0)] = 5,
+    seed: Annotated[int, typer.Option(help="seed of the generated buildings")] = 31,
+    building: Annotated[str, typer.Option(help="lattice (corridors round blocks: loops) or tree")] = "lattice",
+    route_factor: Annotated[
+        float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
+    ] = 1.0,
+    setting: Annotated[str, typer.Option(help="precise or noisy")] = "precise",
+    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    out: Annotated[Path, typer.Option(help="the sweep's folder: scenarios/, <length>m/ runs, report/")] = Path(
+        "results/sweep_scaling"
+    ),
+) -> None:
+    """Map and navigate generated buildings of growing size; planning time and memory against size.
+
+    One run per length under OUT/<length>m (a finished one is kept, an interrupted one resumed: run
+    the same command again), then OUT/report/: scaling.md and scaling.csv (fitted growth exponents),
+    the log-log plot, and the usual tables, plots and report.html of all the runs."""
+    from runners.protocol import SETTINGS
+    from runners.run import RunDir, execute
+    from runners.sweep import ScalingOptions, run_scaling
+    from runners.systems import system_names
+
+    try:
+        length_list = [float(v) for v in lengths.split(",") if v.strip()]
+        if not length_list or min(length_list) < 20.0:
+            raise ValueError
+    except ValueError:
+        fail(f"--lengths: expected comma-separated lengths of at least 20 m, got {lengths!r}")
+    names = [s.strip() for s in systems.split(",") if s.strip()]
+    unknown = [s for s in names if s not in system_names()]
+    if unknown:
+        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
+    if setting not in SETTINGS:
+        fail(f"--setting: unknown setting {setting!r} (choose from {', '.join(SETTINGS)})")
+    if building not in ("lattice", "tree"):
+        fail(f"--building: {building!r} is not lattice or tree")
+    options = ScalingOptions(
+        building=building,
+        lengths=length_list,
+        systems=names,
+        trials=trials,
+        seed=seed,
+        route_factor=route_factor,
+        setting=setting,
+        workers=workers,
+        out=out,
+    )
+
+    def run_one(scenario, run_options):
+        _run_one(scenario, run_options, execute)
+        return RunDir(run_options.out or run_options.resume)
+
+    folders = run_scaling(options, run_one)
+    _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
+
+
+@sweep_app.command("drift")
+def sweep_drift(
+    scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")] = "loop_office",
+    levels: Annotated[str, typer.Option(help="odometry-noise settings in order: off, moderate, strong")] = "precise,noisy,strong",
+    systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
+    trials: Annotated[int, typer.Option(help="navigation trials per level", min=0)] = 5,
+    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    out: Annotated[Path, typer.Option(help="the sweep's folder: <level>/ runs, report/")] = Path("results/sweep_drift"),
+) -> None:
+    """One scenario under odometry noise off, moderate and strong: success, efficiency, map quality.
+
+    One run per level under OUT/<level> (a finished one is kept, an interrupted one resumed), then
+    OUT/report/: drift.md and drift.csv, the per-level plot, Figure 1 (the metric grid built under
+    the strongest drift over the GT map beside the graph of locations) and the usual report."""
+    from runners.protocol import SETTINGS
+    from runners.run import RunDir, execute
+    from runners.sweep import DriftOptions, run_drift
+    from runners.systems import system_names
+
+    level_list = [v.strip() for v in levels.split(",") if v.strip()]
+    bad = [v for v in level_list if v not in SETTINGS]
+    if bad or not level_list:
+        fail(f"--levels: unknown setting(s) {', '.join(bad) or repr(levels)} (choose from {', '.join(SETTINGS)})")
+    names = [s.strip() for s in systems.split(",") if s.strip()]
+    unknown = [s for s in names if s not in system_names()]
+    if unknown:
+        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
+    _load(scenario)  # a bad scenario is one line before any work
+    options = DriftOptions(scenario=scenario, levels=level_list, systems=names, trials=trials, workers=workers, out=out)
+
+    def run_one(loaded, run_options):
+        _run_one(loaded, run_options, execute)
+        return RunDir(run_options.out or run_options.resume)
+
+    folders = run_drift(options, run_one)
+    _sweep_report(folders, out / "report", "drift", "Drift: the same scenario under growing odometry noise")
+
+
+def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:
+    from reports.report import make_report
+    from reports.results import RunFormatError
+    from reports.sweep import write_drift, write_scaling
+
+    try:
+        made = make_report(folders, out, study={"scaling": write_scaling, "drift": write_drift}[study], study_title=title)
+    except RunFormatError as exc:
+        fail(str(exc))
+    for note in made.notes:
+        console.print(f"note: {note}", highlight=False)
+    sys.stdout.write((out / f"{study}.md").read_text())
+    console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -86,6 +86,8 @@ class Setting:
 SETTINGS: dict[str, Setting] = {
     "precise": Setting("precise", None, 0.0),
     "noisy": Setting("noisy", OdometryNoiseSpec(translation=0.02, rotation_deg_per_m=0.5), 0.01),
+    # the drift sweep's strong level: odometry 2.5x the noisy setting's, the same lidar
+    "strong": Setting("strong", OdometryNoiseSpec(translation=0.05, rotation_deg_per_m=1.25), 0.01),
 }
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import psutil
 
 from runners.executors import run_jobs
+from runners.ground_truth import write_ground_truth
 from runners.mapping import MappingSystem, run_mapping
 from runners.metrics import summarize, trial_record
 from runners.navigation import MapLoadError, TrialJob, run_trial_job
@@ -184,6 +185,7 @@ def execute(
         if options.out is None:
             point_latest(run.root)
     say("run_dir", run.root)
+    write_ground_truth(scenario, run.root, trial_count)  # what reports draw against (skipped if present)
     entries = {name: get_system(name) for name in systems}
 
     if options.maps_from is not None and options.resume is None:

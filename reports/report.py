@@ -1,0 +1,140 @@
+"""``navtopo-bench report``: the tables, the plots and one self-contained HTML page of one or more runs.
+
+Writes, under ``out`` (default: the first run's ``report/``)::
+
+    table.md, table.csv, table.tex   Table 1 (reports/tables.py): one combined table for all runs
+    plots/<name>.png, .svg            per run: maps over the GT map, trajectories, map growth;
+                                      over all runs: planning time, efficiency (reports/plots.py)
+    config.yaml                       the run's resolved configs, for the reproducing command
+    report.html                       the table, the plots (embedded), each run's manifest and the
+                                      command that reproduces it (reports/html.py)
+
+With several runs, each run's own plots and its config go under a key naming it
+(``<scenario>-<setting>-s<seed>``, with ``-2``, ``-3`` where two runs share it): ``plots/<key>/``
+and ``config-<key>.yaml``. Everything is made from the results folders alone, so a report made
+from a copied folder is byte for byte the one made from the original.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path, PurePath
+
+import yaml
+
+from reports.html import write_html
+from reports.plots import PlotResult, groups_of, plot_efficiency, plot_planning, run_plots
+from reports.results import Run
+from reports.tables import write_tables
+
+
+@dataclass
+class RunSection:
+    """One run in a report: its key, its plots, its config file and the command that reproduces it."""
+
+    run: Run
+    key: str
+    plots: list[PlotResult] = field(default_factory=list)
+    config_file: str = "config.yaml"
+    command: str = ""
+
+
+@dataclass
+class Report:
+    out: Path
+    sections: list[RunSection]
+    combined: list[PlotResult]
+    files: list[Path]
+    study: list[PlotResult] = field(default_factory=list)
+    study_title: str = ""
+
+    @property
+    def html(self) -> Path:
+        return self.out / "report.html"
+
+    @property
+    def notes(self) -> list[str]:
+        """Why any plot was skipped or drawn without the GT map, one line each."""
+        lines = [f"{s.key}: {p.name}: {p.note}" for s in self.sections for p in s.plots if p.note]
+        return lines + [f"{p.name}: {p.note}" for p in self.combined + self.study if p.note]
+
+
+def run_key(run: Run) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{run.scenario}-{run.setting}-s{run.seed}")
+
+
+def scenario_argument(run: Run) -> str:
+    """A bundled scenario by its name (its file is scenarios/bundled/<name>.yaml), else the file."""
+    info = run.manifest.scenario
+    if info.file is None:
+        return info.name
+    path = PurePath(info.file)
+    if path.parent.name == "bundled" and path.stem == info.name:
+        return info.name
+    return info.file
+
+
+def reproduce_command(run: Run, config_file: str) -> str:
+    """The ``navtopo-bench run`` line that repeats ``run``: the same scenario, systems, seed, trial
+    count, setting and protocol, and its resolved configs (``--config``, relative to the report)."""
+    m = run.manifest
+    p = m.protocol
+    parts = ["navtopo-bench", "run", _quote(scenario_argument(run)), "--systems", ",".join(m.systems), "--seed", str(m.seed)]
+    if m.trial_count is not None:
+        parts += ["--trials", str(m.trial_count)]
+    if m.setting_override:
+        parts += ["--setting", m.setting_override]
+    parts += ["--initial-pose-error", f"{p.initial_pose_error_xy:g},{p.initial_pose_error_yaw_deg:g}"]
+    parts += ["--stop-tolerance", f"{p.stop_tolerance:g}"]
+    if p.goals != "map":
+        parts += ["--goals", p.goals]
+    if m.config:
+        parts += ["--config", config_file]
+    return " ".join(parts)
+
+
+def _quote(text: str) -> str:
+    return text if re.fullmatch(r"[A-Za-z0-9_./:=,+-]+", text) else "'" + text.replace("'", "'\\''") + "'"
+
+
+Study = Callable[[list[Run], Path], list[PlotResult]]
+
+
+def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | None = None, study_title: str = "") -> Report:
+    """Load every run (``RunFormatError`` on a damaged folder, before anything is written) and
+    write the report under ``out`` (default ``run_dirs[0]/report``). ``study(runs, out)`` (e.g.
+    ``reports.sweep.write_scaling``) adds its files and plots, shown first on the page."""
+    runs = [Run.load(d) for d in run_dirs]
+    out = Path(out) if out is not None else Path(run_dirs[0]) / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    files = write_tables(runs, out)
+    plots_dir = out / "plots"
+    several = len(runs) > 1
+    keys: dict[str, int] = {}
+    sections = []
+    for run in runs:
+        key = run_key(run)
+        keys[key] = keys.get(key, 0) + 1
+        if keys[key] > 1:
+            key = f"{key}-{keys[key]}"
+        config_file = f"config-{key}.yaml" if several else "config.yaml"
+        (out / config_file).write_text(yaml.safe_dump(run.manifest.config, sort_keys=False))
+        files.append(out / config_file)
+        section = RunSection(run, key, config_file=config_file, command=reproduce_command(run, config_file))
+        section.plots = run_plots(run, plots_dir / key if several else plots_dir, combined=not several)
+        sections.append(section)
+    combined: list[PlotResult] = []
+    if several:
+        groups = groups_of(runs)
+        combined = [plot_planning(groups, plots_dir), plot_efficiency(groups, plots_dir)]
+    for plot in [p for s in sections for p in s.plots] + combined:
+        files += plot.files
+    study_plots = study(runs, out) if study is not None else []
+    for plot in study_plots:
+        files += plot.files
+    report = Report(out, sections, combined, files, study_plots, study_title)
+    write_html(report)
+    report.files.append(report.html)
+    return report

@@ -1,0 +1,133 @@
+"""``navtopo-bench sweep scaling``: the same study at growing environment sizes.
+
+For each total corridor length a scenario is generated (``--building lattice``, the default:
+``scenarios.lattice.lattice_building``, corridors round blocks, so with loops; ``tree``:
+``scenarios.generators.corridor_tree``; both dressed with door niches, side rooms, furniture and
+pillars; same seed, same building), written as a YAML file under ``<out>/scenarios/`` (so every run can be resumed and
+repeated from its manifest), then run like ``navtopo-bench run`` into ``<out>/<length>m/``: the
+mapping route (an auto tour of ``route_factor`` x the corridor length at least) and a fixed number of
+trials for each system. ``reports.sweep`` then reads those folders alone and plots planning time
+and every memory part against the environment size, log-log, with fitted growth exponents.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from runners.protocol import TrialProtocol
+from runners.run import RunDir, RunOptions, execute
+from scenarios import Scenario, load_scenario
+from scenarios.generators import corridor_tree
+from scenarios.lattice import lattice_building
+
+DEFAULT_LENGTHS = (150, 300, 600, 1200, 2400)
+DEFAULT_SYSTEMS = ("navtopo", "metric_grid")
+GENERATORS = {"lattice": lattice_building, "tree": corridor_tree}
+
+
+@dataclass
+class ScalingOptions:
+    lengths: list[float] = field(default_factory=lambda: list(DEFAULT_LENGTHS))
+    systems: list[str] = field(default_factory=lambda: list(DEFAULT_SYSTEMS))
+    trials: int = 5
+    seed: int = 31  # the buildings' seed: disjoint from the generated scenes parameters were tuned on
+    building: str = "lattice"  # a GENERATORS name
+    route_factor: float = 1.0  # the auto route drives at least this many times the corridor length
+    # trial ends this far apart (GT path): a share of the corridor length for trees; for a lattice
+    # its generator's default, 40 % of the way across it (a share of the length would not fit)
+    min_distance_factor: float = 0.3
+    setting: str | None = "precise"
+    workers: int = 1
+    out: Path = Path("results/sweep_scaling")
+    protocol: TrialProtocol = field(default_factory=TrialProtocol)
+
+
+def scaling_scenario_file(length: float, options: ScalingOptions) -> Path:
+    """Write (once) and return the YAML file of the generated building of ``length`` m."""
+    name = f"scaling_{options.building}_{int(round(length))}m"
+    path = options.out / "scenarios" / f"{name}.yaml"
+    if not path.is_file():
+        spec = GENERATORS[options.building](
+            length,
+            seed=options.seed,
+            route_factor=options.route_factor,
+            trials=options.trials,
+            min_distance=options.min_distance_factor * length if options.building == "tree" else None,
+            name=name,
+        )
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+def run_scaling(
+    options: ScalingOptions,
+    run_one: Callable[[Scenario, RunOptions], RunDir] | None = None,
+) -> list[Path]:
+    """Every size in turn (a finished size is kept, an interrupted one resumed); returns the run folders."""
+    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
+    folders = []
+    for length in options.lengths:
+        scenario = load_scenario(scaling_scenario_file(length, options))
+        folder = options.out / f"{int(round(length))}m"
+        if (folder / "summary.json").is_file():
+            folders.append(folder)
+            continue
+        resume = folder if (folder / "manifest.json").is_file() else None
+        run_options = RunOptions(
+            systems=list(options.systems),
+            trials=options.trials,
+            out=None if resume else folder,
+            resume=resume,
+            workers=options.workers,
+            setting=options.setting,
+            protocol=options.protocol,
+        )
+        folders.append(run_one(scenario, run_options).root)
+    return folders
+
+
+# ---------------------------------------------------------------------------------------------
+# drift: one scenario under odometry noise off, moderate and strong
+
+DEFAULT_LEVELS = ("precise", "noisy", "strong")  # runners.protocol.SETTINGS: off, moderate, strong
+
+
+@dataclass
+class DriftOptions:
+    scenario: str = "loop_office"
+    levels: list[str] = field(default_factory=lambda: list(DEFAULT_LEVELS))
+    systems: list[str] = field(default_factory=lambda: list(DEFAULT_SYSTEMS))
+    trials: int = 5
+    workers: int = 1
+    out: Path = Path("results/sweep_drift")
+    protocol: TrialProtocol = field(default_factory=TrialProtocol)
+
+
+def run_drift(options: DriftOptions, run_one: Callable[[Scenario, RunOptions], RunDir] | None = None) -> list[Path]:
+    """The scenario once per level into ``<out>/<level>/`` (a finished level kept, an interrupted one
+    resumed); the same seed, route and trials, only the noise differs. Returns the run folders."""
+    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
+    scenario = load_scenario(options.scenario)
+    folders = []
+    for level in options.levels:
+        folder = options.out / level
+        if (folder / "summary.json").is_file():
+            folders.append(folder)
+            continue
+        resume = folder if (folder / "manifest.json").is_file() else None
+        run_options = RunOptions(
+            systems=list(options.systems),
+            trials=options.trials,
+            out=None if resume else folder,
+            resume=resume,
+            workers=options.workers,
+            setting=level,
+            protocol=options.protocol,
+        )
+        folders.append(run_one(scenario, run_options).root)
+    return folders
