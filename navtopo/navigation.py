@@ -284,6 +284,7 @@ class Navigator:
     _path_vertex: int | None = None
     _plan_stamp: float = -np.inf
     _target_is_goal: bool = False
+    _goal_short: bool = False  # the local path to the goal ends short of it: the robot does not fit there
     obstacles: ObstacleMemory = field(default_factory=ObstacleMemory)  # returns the map lacks, until seen through
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
     _progress: tuple[float, NDArray[np.float64]] | None = None
@@ -301,7 +302,16 @@ class Navigator:
         self.first_plan_ms = None
         self.localizations = []
         self.counters = dict.fromkeys(
-            ["plans", "plans_failed", "edges_removed", "global_replans", "reached_by_composition", "explore_moves"], 0
+            [
+                "plans",
+                "plans_failed",
+                "edges_removed",
+                "global_replans",
+                "reached_by_composition",
+                "reached_short",
+                "explore_moves",
+            ],
+            0,
         )
         self.maintainer.forget()
         self.startup.reset()
@@ -310,6 +320,7 @@ class Navigator:
         self._route = None
         self._path_vertex = None
         self._plan_stamp = -np.inf
+        self._target_is_goal = self._goal_short = False
         self.obstacles.clear()
         self._obstacle_vertex = None
         self._progress = None
@@ -440,6 +451,11 @@ class Navigator:
             if self._try_goal_vertex(obs, vertex, pose):
                 self.status = NavStatus(Status.REACHED)
                 return Command()
+        if self._goal_short and self.follower.has_path and self.follower.reached and vertex == self.goal.vertex and not tentative:
+            # a goal the robot does not fit at (estimated into a wall): as near as the free space allows
+            self.counters["reached_short"] += 1
+            self.status = NavStatus(Status.REACHED)
+            return Command()
         self._remember_obstacles(obs, vertex, pose)
         if self._needs_plan(obs, vertex, pose):
             if not self._plan(obs, vertex, pose, tentative):
@@ -535,6 +551,7 @@ class Navigator:
         self._path_vertex = vertex
         self._plan_stamp = obs.stamp
         self._target_is_goal = bool(np.allclose(target, goal_point[0]))
+        self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
         return True
 
