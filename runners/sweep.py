@@ -69,26 +69,15 @@ def run_scaling(
     run_one: Callable[[Scenario, RunOptions], RunDir] | None = None,
 ) -> list[Path]:
     """Every size in turn (a finished size is kept, an interrupted one resumed); returns the run folders."""
-    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
-    folders = []
-    for length in options.lengths:
-        scenario = load_scenario(scaling_scenario_file(length, options))
-        folder = options.out / f"{int(round(length))}m"
-        if (folder / "summary.json").is_file():
-            folders.append(folder)
-            continue
-        resume = folder if (folder / "manifest.json").is_file() else None
-        run_options = RunOptions(
-            systems=list(options.systems),
-            trials=options.trials,
-            out=None if resume else folder,
-            resume=resume,
-            workers=options.workers,
-            setting=options.setting,
-            protocol=options.protocol,
+    jobs = [
+        (
+            lambda length=length: load_scenario(scaling_scenario_file(length, options)),
+            options.out / f"{int(round(length))}m",
+            options.setting,
         )
-        folders.append(run_one(scenario, run_options).root)
-    return folders
+        for length in options.lengths
+    ]
+    return _run_each(jobs, options.systems, options.trials, options.workers, options.protocol, run_one)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -111,23 +100,36 @@ class DriftOptions:
 def run_drift(options: DriftOptions, run_one: Callable[[Scenario, RunOptions], RunDir] | None = None) -> list[Path]:
     """The scenario once per level into ``<out>/<level>/`` (a finished level kept, an interrupted one
     resumed); the same seed, route and trials, only the noise differs. Returns the run folders."""
-    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
     scenario = load_scenario(options.scenario)
+    jobs = [(lambda: scenario, options.out / level, level) for level in options.levels]
+    return _run_each(jobs, options.systems, options.trials, options.workers, options.protocol, run_one)
+
+
+def _run_each(
+    jobs: list[tuple[Callable[[], Scenario], Path, str | None]],
+    systems: list[str],
+    trials: int,
+    workers: int,
+    protocol: TrialProtocol,
+    run_one: Callable[[Scenario, RunOptions], RunDir] | None,
+) -> list[Path]:
+    """Run each (scenario loader, folder, setting) in turn: a finished folder is kept, an
+    interrupted one resumed. Returns the run folders."""
+    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
     folders = []
-    for level in options.levels:
-        folder = options.out / level
+    for load, folder, setting in jobs:
         if (folder / "summary.json").is_file():
             folders.append(folder)
             continue
         resume = folder if (folder / "manifest.json").is_file() else None
         run_options = RunOptions(
-            systems=list(options.systems),
-            trials=options.trials,
+            systems=list(systems),
+            trials=trials,
             out=None if resume else folder,
             resume=resume,
-            workers=options.workers,
-            setting=level,
-            protocol=options.protocol,
+            workers=workers,
+            setting=setting,
+            protocol=protocol,
         )
-        folders.append(run_one(scenario, run_options).root)
+        folders.append(run_one(load(), run_options).root)
     return folders

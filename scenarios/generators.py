@@ -159,6 +159,30 @@ def grow_tree(total_length: float, rng: np.random.Generator, widths: tuple[float
     return corridors
 
 
+def scenario_dict(
+    name: str,
+    description: str,
+    seed: int,
+    corridors: list,
+    rooms: list,
+    obstacles: list,
+    route_m: float,
+    trials: int,
+    min_distance: float,
+) -> dict:
+    """A generated world as a scenario dict (format 1): 0.05 m raster, 2.6 m walls, an auto mapping
+    route of at least ``route_m``, ``trials`` generated trials whose ends are ``min_distance`` apart."""
+    return {
+        "format": "navtopo-scenario/1",
+        "name": name,
+        "description": description,
+        "seed": seed,
+        "world": {"resolution": 0.05, "wall_height": 2.6, "corridors": corridors, "rooms": rooms, "obstacles": obstacles},
+        "mapping_route": {"auto": {"min_length": round(route_m, 1)}},
+        "trials": {"generate": {"count": trials, "min_distance": round(min_distance, 1)}},
+    }
+
+
 def corridor_tree(
     total_length: float,
     seed: int = 0,
@@ -171,20 +195,17 @@ def corridor_tree(
     rng = np.random.default_rng(seed)
     corridors = grow_tree(total_length, rng)
     rooms, obstacles = dress(corridors, rng)
-    return {
-        "format": "navtopo-scenario/1",
-        "name": name or f"tree_{int(round(total_length))}m_s{seed}",
-        "description": f"generated corridor tree, {total_length:.0f} m of corridor, seed {seed}",
-        "seed": seed,
-        "world": {"resolution": 0.05, "wall_height": 2.6, "corridors": corridors, "rooms": rooms, "obstacles": obstacles},
-        "mapping_route": {"auto": {"min_length": round(route_factor * total_length, 1)}},
-        "trials": {
-            "generate": {
-                "count": trials,
-                "min_distance": round(min_distance if min_distance is not None else 0.3 * total_length, 1),
-            }
-        },
-    }
+    return scenario_dict(
+        name or f"tree_{int(round(total_length))}m_s{seed}",
+        f"generated corridor tree, {total_length:.0f} m of corridor, seed {seed}",
+        seed,
+        corridors,
+        rooms,
+        obstacles,
+        route_factor * total_length,
+        trials,
+        min_distance if min_distance is not None else 0.3 * total_length,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -396,22 +417,16 @@ def ring_building(
     more_rooms, more_obstacles = dress(corridors, rng, spacing=3.5, keep_out=keep_out, keep_clear=keep_clear)
     total = sum(float(np.linalg.norm(np.diff(np.asarray(c["points"], float), axis=0), axis=1).sum()) for c in corridors)
     kind = "a ring of corridors" if rings == 1 else "two rings of corridors sharing one"
-    return {
-        "format": "navtopo-scenario/1",
-        "name": name or f"ring{rings}_{int(round(total))}m_s{seed}",
-        "description": f"generated building: {kind}, {total:.0f} m of corridor, {len(room_shapes)} rooms behind doors"
+    return scenario_dict(
+        name or f"ring{rings}_{int(round(total))}m_s{seed}",
+        f"generated building: {kind}, {total:.0f} m of corridor, {len(room_shapes)} rooms behind doors"
         + (f" ({repeated_rooms} identical)" if repeated_rooms else "")
         + f", seed {seed}",
-        "seed": seed,
-        "world": {
-            "resolution": 0.05,
-            "wall_height": 2.6,
-            "corridors": corridors,
-            "rooms": rooms + more_rooms,
-            "obstacles": obstacles + more_obstacles,
-        },
-        "mapping_route": {"auto": {"min_length": round(route_factor * total, 1)}},
-        "trials": {
-            "generate": {"count": trials, "min_distance": round(min_distance if min_distance is not None else 0.25 * total, 1)}
-        },
-    }
+        seed,
+        corridors,
+        rooms + more_rooms,
+        obstacles + more_obstacles,
+        route_factor * total,
+        trials,
+        min_distance if min_distance is not None else 0.25 * total,
+    )

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from scenarios.generators import dress
+from scenarios.generators import dress, scenario_dict
 
 
 def lattice_shape(total_length: float, block_m: tuple[float, float] = (12.0, 26.0)) -> tuple[int, int, float]:
@@ -55,21 +55,18 @@ def lattice_building(
         for i in range(nx + 1)
     ]
     rooms, obstacles = dress(corridors, rng)
-    return {
-        "format": "navtopo-scenario/1",
-        "name": name or f"lattice_{int(round(total_length))}m_s{seed}",
-        "description": f"generated office lattice, {nx} x {ny} blocks of {block:.1f} m, {total_length:.0f} m of corridor",
-        "seed": seed,
-        "world": {"resolution": 0.05, "wall_height": 2.6, "corridors": corridors, "rooms": rooms, "obstacles": obstacles},
-        "mapping_route": {"auto": {"min_length": round(route_factor * total_length, 1)}},
-        "trials": {
-            "generate": {
-                "count": trials,
-                # default: 40 % of the way across the lattice (x + y), which any size can hold
-                "min_distance": round(min_distance if min_distance is not None else 0.4 * (width_x + width_y), 1),
-            }
-        },
-    }
+    return scenario_dict(
+        name or f"lattice_{int(round(total_length))}m_s{seed}",
+        f"generated office lattice, {nx} x {ny} blocks of {block:.1f} m, {total_length:.0f} m of corridor",
+        seed,
+        corridors,
+        rooms,
+        obstacles,
+        route_factor * total_length,
+        trials,
+        # default: 40 % of the way across the lattice (x + y), which any size can hold
+        min_distance if min_distance is not None else 0.4 * (width_x + width_y),
+    )
 
 
 def _width(rng: np.random.Generator, widths: tuple[float, float]) -> float:
