@@ -50,6 +50,13 @@ class MappingConfig(BaseModel):
     max_edge_length: float = Field(5.0, gt=0, description="still inside: at most this far from the location's centre (m)")
     max_neighbour_jump: float = Field(1.0, gt=0, description="a move along an edge may correct odometry by at most this (m)")
     max_correction: float = Field(0.5, gt=0, description="an in-location correction may move the pose by at most this (m)")
+    correction_per_metre: float | None = Field(
+        None,
+        ge=0,
+        description="if set, a correction may move the pose by at most correction_base + this share of the odometry "
+        "travelled since the last verified pose (and max_correction): a match that slides along a corridor is not drift",
+    )
+    correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
     edge_tolerance: float = Field(1.0, gt=0, description="a new edge agrees with the graph's path within this (m) ...")
     edge_tolerance_per_metre: float = Field(0.05, ge=0, description="... plus this share of the path length")
     loop_ratio: float = Field(2.0, gt=1, description="a path longer than this times the edge closes a loop")
@@ -111,6 +118,7 @@ class GraphMaintainer:
         self._last_odom: NDArray[np.float64] | None = None
         self._odom_at_update: NDArray[np.float64] | None = None
         self._odometer = 0.0  # metres of odometry travelled
+        self._odometer_verified = 0.0  # the odometer when the pose was last verified by scan matching
         self._odometer_at_vertex: dict[int, float] = {}
         self._edge_measurements: dict[tuple[int, int], int] = {}
 
@@ -248,10 +256,15 @@ class GraphMaintainer:
 
     def _correct(self, query: PreparedGrid) -> bool:
         assert self.current is not None
-        located = self.localizer.verify(query, self.current, self.pose_in_current, self.config.max_correction)
+        limit = self.config.max_correction
+        if self.config.correction_per_metre is not None:
+            travelled = self._odometer - self._odometer_verified
+            limit = min(limit, self.config.correction_base + self.config.correction_per_metre * travelled)
+        located = self.localizer.verify(query, self.current, self.pose_in_current, limit)
         self.counters.matches += 1
         if located is None:
             return False
+        self._odometer_verified = self._odometer
         self.pose_in_current = located.pose
         self.counters.corrections += 1
         self.last_verified = True
@@ -360,6 +373,7 @@ class GraphMaintainer:
     # -- graph changes -----------------------------------------------------------------------------
 
     def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64]) -> None:
+        self._odometer_verified = self._odometer
         self.current = vertex
         self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()
 

@@ -146,3 +146,32 @@ def test_global_localization_finds_the_location_and_the_pose_without_a_prior(sce
             assert abs(se2.wrap_angle(estimate[2] - truth[2])) < np.radians(3)
             located += 1
     assert located >= 3
+
+
+def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_verified_pose_explains():
+    """``mapping.correction_per_metre``: a correction may move the pose by at most base + k x the
+    odometry travelled since the pose was last verified (never more than max_correction)."""
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import GridConfig
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    def limits(config: MappingConfig, travelled: list[float]) -> list[float]:
+        maintainer = GraphMaintainer(
+            TopologicalGraph(4), lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), config, LocalizationConfig()
+        )
+        maintainer.current = 0
+        seen = []
+        maintainer.localizer.verify = lambda query, vertex, guess, max_jump: seen.append(max_jump)  # never verifies
+        odom = np.zeros(3)
+        maintainer.integrate(odom)
+        for step in travelled:
+            odom = odom + np.array([step, 0.0, 0.0])
+            maintainer.integrate(odom)
+            maintainer._correct(None)
+        return seen
+
+    assert limits(MappingConfig(), [0.25, 0.25]) == [0.5, 0.5]  # off: max_correction alone
+    gated = MappingConfig(correction_per_metre=0.2, correction_base=0.05)
+    assert limits(gated, [0.25, 0.25, 5.0]) == pytest.approx([0.1, 0.15, 0.5])  # 0.05 + 0.2 x 0.25, x 0.5; capped
