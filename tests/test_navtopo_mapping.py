@@ -159,7 +159,12 @@ def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_veri
 
     def limits(config: MappingConfig, travelled: list[float]) -> list[float]:
         maintainer = GraphMaintainer(
-            TopologicalGraph(4), lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), config, LocalizationConfig()
+            TopologicalGraph(4),
+            lambda points: np.ones(4, np.float32),
+            GridConfig(),
+            MatchingConfig(),
+            config,
+            LocalizationConfig(),
         )
         maintainer.current = 0
         seen = []
