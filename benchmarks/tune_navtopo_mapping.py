@@ -24,9 +24,9 @@ import numpy as np
 import yaml
 from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
 
-from navtopo import geometry as se2
 from navtopo.system import NavTopo, NavTopoConfig
 from runners.mapping import revisited_late
+from runners.metrics import each_edge_error
 from runners.systems import SystemContext
 
 
@@ -50,10 +50,7 @@ def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any
     steps = np.hypot(*np.diff(rec.true[:, :2], axis=0).T)
     travelled = dict(zip((float(s) for s in rec.stamps), np.r_[0.0, np.cumsum(steps)], strict=True))
     half = float(travelled[float(rec.stamps[-1])]) / 2.0
-    edges = []
-    for stamp_u, stamp_v, pose in stats["edges_stamped"]:
-        error = se2.between(se2.between(true[stamp_u], true[stamp_v]), np.asarray(pose))
-        edges.append((float(np.hypot(error[0], error[1])), float(np.degrees(abs(error[2]))), stamp_u, stamp_v))
+    edges = each_edge_error(stats["edges_stamped"], true)
     stamps = stats["vertex_stamps"]
     late = sum(1 for s in stamps if travelled[s] > half)
     worst = max(edges, default=(0.0, 0.0, 0.0, 0.0))

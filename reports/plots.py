@@ -135,6 +135,18 @@ def finish_map(fig: plt.Figure, ax: plt.Axes, columns: int = 4) -> None:
     fig.tight_layout()
 
 
+def _finish_map_plot(
+    result: PlotResult, fig: plt.Figure, ax: plt.Axes, columns: int, folder: Path, gt: GroundTruth | None, caption: str
+) -> PlotResult:
+    """Legend, caption and files of a plot over the GT map; a note when the run has no GT map."""
+    finish_map(fig, ax, columns)
+    result.caption = caption
+    result.files = save(fig, folder, result.name)
+    if gt is None:
+        result.note = "drawn without the GT map: the run has no ground_truth/ folder"
+    return result
+
+
 def map_frame(run: Run) -> NDArray | None:
     gt = run.ground_truth
     return None if gt is None else np.asarray(gt.raster.map_frame, dtype=np.float64)
@@ -261,12 +273,8 @@ def plot_graph_map(run: Run, system: str, folder: Path, name: str | None = None)
         + (f"; edge error median {error:.3f} m" if error is not None else ""),
         fontsize=9,
     )
-    finish_map(fig, ax, 3)
-    result.caption = where + "; " + ("GT map underneath" if gt is not None else "no GT map in this run (ground_truth/ missing)")
-    result.files = save(fig, folder, result.name)
-    if gt is None:
-        result.note = "drawn without the GT map: the run has no ground_truth/ folder"
-    return result
+    caption = where + "; " + ("GT map underneath" if gt is not None else "no GT map in this run (ground_truth/ missing)")
+    return _finish_map_plot(result, fig, ax, 3, folder, gt, caption)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -410,14 +418,10 @@ def plot_trajectories(run: Run, system: str, folder: Path) -> PlotResult:
     ax.set_title(
         f"{system} on {run.scenario} ({run.setting}): {len(records) - failed}/{len(records)} trials succeeded", fontsize=9
     )
-    finish_map(fig, ax, 5)
-    result.caption = "true trajectories (scenario frame) of every trial" + (
+    caption = "true trajectories (scenario frame) of every trial" + (
         "" if gt is not None else "; no GT map in this run (ground_truth/ missing)"
     )
-    result.files = save(fig, folder, result.name)
-    if gt is None:
-        result.note = "drawn without the GT map: the run has no ground_truth/ folder"
-    return result
+    return _finish_map_plot(result, fig, ax, 5, folder, gt, caption)
 
 
 # ---------------------------------------------------------------------------------------------

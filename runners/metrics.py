@@ -197,16 +197,25 @@ def _count(values: list[str]) -> dict[str, int]:
     return counts
 
 
-def edge_errors(edges: list[tuple[float, float, list[float]]], true_pose_at: dict[float, NDArray]) -> dict[str, Any]:
-    """Each edge (stamp_u, stamp_v, T_uv) against the true relative pose of its observation points."""
-    translation, rotation = [], []
+def each_edge_error(
+    edges: list[tuple[float, float, list[float]]], true_pose_at: dict[float, NDArray]
+) -> list[tuple[float, float, float, float]]:
+    """(translation m, rotation deg, stamp_u, stamp_v) of each edge (stamp_u, stamp_v, T_uv) against
+    the true relative pose of its observation points; edges without true poses are left out."""
+    out = []
     for stamp_u, stamp_v, t_uv in edges:
         if stamp_u not in true_pose_at or stamp_v not in true_pose_at:
             continue
         truth = se2.between(true_pose_at[stamp_u], true_pose_at[stamp_v])
         error = se2.between(truth, np.asarray(t_uv, float))
-        translation.append(float(np.hypot(error[0], error[1])))
-        rotation.append(float(np.degrees(abs(error[2]))))
+        out.append((float(np.hypot(error[0], error[1])), float(np.degrees(abs(error[2]))), stamp_u, stamp_v))
+    return out
+
+
+def edge_errors(edges: list[tuple[float, float, list[float]]], true_pose_at: dict[float, NDArray]) -> dict[str, Any]:
+    """Each edge (stamp_u, stamp_v, T_uv) against the true relative pose of its observation points."""
+    each = each_edge_error(edges, true_pose_at)
+    translation, rotation = [e[0] for e in each], [e[1] for e in each]
 
     def two(v: list[float]) -> dict[str, float | None]:
         return {"median": round(float(np.median(v)), 4) if v else None, "max": round(float(np.max(v)), 4) if v else None}
