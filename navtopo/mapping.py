@@ -51,10 +51,11 @@ class MappingConfig(BaseModel):
     max_neighbour_jump: float = Field(1.0, gt=0, description="a move along an edge may correct odometry by at most this (m)")
     max_correction: float = Field(0.5, gt=0, description="an in-location correction may move the pose by at most this (m)")
     correction_per_metre: float | None = Field(
-        None,
+        0.2,
         ge=0,
-        description="if set, a correction may move the pose by at most correction_base + this share of the odometry "
-        "travelled since the last verified pose (and max_correction): a match that slides along a corridor is not drift",
+        description="a correction may move the pose by at most correction_base + this share of the odometry "
+        "travelled since the last verified pose (and max_correction): a match that slides along a corridor is not "
+        "drift (None: max_correction alone)",
     )
     correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
     edge_tolerance: float = Field(1.0, gt=0, description="a new edge agrees with the graph's path within this (m) ...")
@@ -65,6 +66,12 @@ class MappingConfig(BaseModel):
         ge=1.0,
         description="mapping: before making a location, stay in the current one if its scan still matches "
         "within this times max_edge_length (revisits along another line do not map a place twice)",
+    )
+    seen_only: bool = Field(
+        True,
+        description="mapping: a location holds the robot only on a cell its scan saw; a room entered through a "
+        "door (seen only in part from the corridor) gets a location of its own, so that a start-up there "
+        "can localize and a goal there can be planned to",
     )
     edge_measurements: int = Field(
         20, ge=1, description="passes along an edge averaged into it at most (later ones weigh 1/this)"
@@ -229,7 +236,9 @@ class GraphMaintainer:
     def _inside(self, grid: NDArray[np.uint8]) -> str:
         """ "seen": near the location's centre, on a cell it knows, the scans overlapping enough;
         "unseen": the same but on a cell it never saw (behind a door frame, in a room it saw through
-        a door), to be confirmed by scan matching; "" (outside) otherwise."""
+        a door), to be confirmed by scan matching — navigating, or mapping with ``seen_only`` off
+        (mapping with it on, such a cell is outside: the room becomes a location); "" (outside)
+        otherwise."""
         assert self.current is not None
         pose = self.pose_in_current
         if float(np.hypot(pose[0], pose[1])) > self.config.max_edge_length:
@@ -237,11 +246,20 @@ class GraphMaintainer:
         vertex_grid = self.grids.get(self.current).grid
         if overlap(vertex_grid, grid, pose, self.grid_config) < self.config.min_overlap:
             return ""
-        row, col = xy_to_cell(pose[None, :2], self.grid_config)[0]
+        if self._sees(self.current, pose):
+            return "seen"
+        return "" if self._claims_seen_only else "unseen"
+
+    @property
+    def _claims_seen_only(self) -> bool:
+        return self.mapping and self.config.seen_only
+
+    def _sees(self, vertex: int, pose: NDArray[np.float64]) -> bool:
+        """Did ``vertex``'s scan see the cell at ``pose`` (its frame)?"""
+        vertex_grid = self.grids.get(vertex).grid
+        row, col = xy_to_cell(np.asarray(pose, dtype=np.float64)[None, :2], self.grid_config)[0]
         size = vertex_grid.shape[0]
-        if not (0 <= row < size and 0 <= col < size) or vertex_grid[row, col] == UNKNOWN:
-            return "unseen"
-        return "seen"
+        return bool(0 <= row < size and 0 <= col < size and vertex_grid[row, col] != UNKNOWN)
 
     def _still_matches(self, query: PreparedGrid) -> bool:
         """Within ``stay_factor`` times the location's reach, does scan matching still place the robot
@@ -250,6 +268,8 @@ class GraphMaintainer:
         stays as odometry carries it."""
         assert self.current is not None
         if float(np.hypot(*self.pose_in_current[:2])) > self.config.stay_factor * self.config.max_edge_length:
+            return False
+        if self._claims_seen_only and not self._sees(self.current, self.pose_in_current):
             return False
         self.counters.matches += 1
         return self.localizer.verify(query, self.current, self.pose_in_current, self.config.max_correction) is not None
@@ -283,6 +303,8 @@ class GraphMaintainer:
             guess = between(pose_uv, here)  # the robot in the neighbour's frame, by the edge
             self.counters.matches += 1
             located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
+            if located is not None and self._claims_seen_only and not self._sees(vertex, located.pose):
+                continue
             if located is not None:
                 if self.mapping:
                     self._refine_edge(query, self.current, vertex, located.pose)
@@ -339,6 +361,8 @@ class GraphMaintainer:
         found = self.localizer.localize(query, descriptor, exclude=exclude, robot_hint=hint, hint_gate=gates)
         self.counters.matches += min(self.localizer.config.top_k, len(self.graph))
         for located in found:
+            if self._claims_seen_only and not self._sees(located.vertex, located.pose):
+                continue
             if self.current is None:
                 self._switch(located.vertex, located.pose)
                 self.last_verified = True

@@ -7,11 +7,14 @@ are nearest to the scan's and verifies each by scan matching; a verified candida
 hypothesis explains becomes a hypothesis ``(vertex, pose)``, tracked from then on by odometry and
 scan matching like the robot itself (inside its location, or along an edge). A look that verifies a
 hypothesis supports it; two looks in a row that do not drop it. The robot commits to a hypothesis
-only when it is the one left, has been supported at ``confirm_looks`` looks and has survived
-``confirm_distance`` metres of motion: a wrong localization is worse than none (repeated rooms,
-symmetric corridors verify from one viewpoint; rarely over a metre of motion). Meanwhile the robot
+only when it is the one left, has been supported at ``confirm_looks`` looks, has survived
+``confirm_distance`` metres of motion and has been verified in ``confirm_places`` locations (or
+survived ``confirm_distance_one_place`` metres): a wrong localization is worse than none (repeated
+rooms, symmetric corridors verify from one viewpoint, a room and its mirror image over metres of
+motion inside it; rarely across a door into the next location). Meanwhile the robot
 drives toward the goal as the best hypothesis sees it (so confirmation costs no detour when the
-best is right), or, with no hypothesis, explores toward open space in its own scan. Without a
+best is right), or, with no hypothesis, explores its own scan toward the free point farthest from
+where it has driven (out of a room through its door rather than round it again). Without a
 commitment after ``timeout`` seconds the trial fails with ``not_localized``.
 
 The goal server receives a goal as ``(v_goal, T_goal)`` — or as a point in the map frame, turned
@@ -57,6 +60,12 @@ class StartupConfig(BaseModel):
     top_k: int = Field(10, ge=1, description="place-recognition candidates verified at each look")
     confirm_looks: int = Field(3, ge=1, description="looks that must verify a hypothesis before it is committed")
     confirm_distance: float = Field(1.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
+    confirm_places: int = Field(
+        2, ge=1, description="locations the hypothesis must have been verified in before it is committed ..."
+    )
+    confirm_distance_one_place: float = Field(
+        4.0, ge=0, description="... unless it has survived this many m of motion (a start and goal in one location)"
+    )
     drop_after: int = Field(2, ge=1, description="looks in a row without verification drop a hypothesis")
     same_place: float = Field(1.0, gt=0, description="m: candidates this close (through the graph) are one hypothesis")
     same_place_in_map: float = Field(
@@ -83,6 +92,7 @@ class Hypothesis:
     support: int  # looks that verified it
     odometer_start: float  # the robot's odometer when it was found
     misses: int = 0
+    places: set[int] = field(default_factory=set)  # the locations it was verified in
 
     @property
     def vertex(self) -> int:
@@ -203,6 +213,7 @@ class Startup:
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
             if h.tracker.last_verified:
                 h.support, h.misses = h.support + 1, 0
+                h.places.add(h.vertex)
             else:
                 h.misses += 1
         self.hypotheses = [h for h in self.hypotheses if h.misses < self.config.drop_after]
@@ -213,7 +224,9 @@ class Startup:
         for located in found:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
-                self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer))
+                self.hypotheses.append(
+                    Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex})
+                )
                 self.seen += 1
 
     def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
@@ -239,7 +252,10 @@ class Startup:
             return None
         h = self.hypotheses[0]
         moved = self._odometer - h.odometer_start
-        if h.support >= self.config.confirm_looks and moved >= self.config.confirm_distance:
+        if h.support < self.config.confirm_looks or moved < self.config.confirm_distance:
+            return None
+        # a room and its mirror image agree from inside; the corridor outside the door tells them apart
+        if len(h.places) >= self.config.confirm_places or moved >= self.config.confirm_distance_one_place:
             return h
         return None
 
@@ -293,6 +309,7 @@ class Navigator:
     _tentative: Hypothesis | None = None
     _explore_until: float = 0.0  # the startup odometer reading where the current exploring move ends
     _progress_mark: tuple[float, float] | None = None  # (stamp, startup odometer) of the last progress
+    _trail: list[NDArray[np.float64]] = field(default_factory=list)  # start-up: where the robot drove (odometry frame)
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -328,6 +345,7 @@ class Navigator:
         self._explore = None
         self._tentative = None
         self._explore_until = 0.0
+        self._trail = []
         self._progress_mark = None
 
     # -- the goal server ----------------------------------------------------------------------------
@@ -363,6 +381,9 @@ class Navigator:
 
     def _step_unlocalized(self, obs: Observation) -> Command:
         startup = self.startup
+        here = np.asarray(obs.odom, dtype=np.float64)[:2].copy()
+        if not self._trail or np.hypot(*(here - self._trail[-1])) >= 0.25:
+            self._trail.append(here)
         driven = self._tentative if self._tentative in startup.hypotheses else None
         committed = startup.step(obs, driven, self._route if driven is not None else None, force=self._at_path_end())
         if committed is not None:
@@ -421,21 +442,36 @@ class Navigator:
         return self.follower.command(between(start_odom, obs.odom))
 
     def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
+        """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or
+        twice, or half that) away, the one farthest from where the start-up has already driven (the
+        way out of a room leads through its door, not round the room again), forward first on ties."""
         grid_config = self.maintainer.grid_config
         grid = grid_from_points(obs.points, grid_config)
         frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
         passable = inflate_free(grid == FREE, self.local.wide, frame.resolution)
         angles = np.radians(np.arange(0.0, 360.0, 15.0))
         reach = self.startup.config.explore_distance
-        for scale in (1.0, 0.5):
-            ends = np.stack([np.cos(angles), np.sin(angles)], axis=1) * reach * scale
-            cells = frame.to_cell(ends)
-            ok = passable[cells[:, 0], cells[:, 1]]
-            for k in np.argsort(-np.cos(angles)):  # forward first, then to the sides
-                if ok[k]:
-                    planned = plan_path([passable], frame, np.zeros(2), ends[k], snap_cells=5)
-                    if planned is not None:
-                        return planned.points
+        directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        ends = np.vstack([directions * reach * scale for scale in (2.0, 1.0, 0.5)])
+        cells = frame.to_cell(ends)
+        inside = np.all((cells >= 0) & (cells < passable.shape), axis=1)
+        ok = np.flatnonzero(inside)[passable[cells[inside, 0], cells[inside, 1]]]
+        if not len(ok):
+            return None
+        trail = np.array(self._trail) if self._trail else np.zeros((0, 2))
+        odom = np.asarray(obs.odom, dtype=np.float64)
+        in_odom = transform_points(odom, ends[ok])
+        novelty = (
+            np.min(np.hypot(*(in_odom[:, None, :] - trail[None, :, :]).transpose(2, 0, 1)), axis=1)
+            if len(trail)
+            else np.zeros(len(ok))
+        )
+        forward = np.cos(np.tile(angles, 3))[ok]
+        order = np.lexsort((-forward, -np.round(novelty / 0.5)))  # novelty in 0.5 m steps, then forward
+        for k in ok[order][:8]:
+            planned = plan_path([passable], frame, np.zeros(2), ends[k], snap_cells=5)
+            if planned is not None:
+                return planned.points
         return None
 
     # -- planning and following ----------------------------------------------------------------------------

@@ -93,15 +93,16 @@ class MatchingConfig(BaseModel):
     field_cutoff: float = Field(default=0.2, gt=0.0, description="farther cells are left out, m")
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
-    # Two thresholds, chosen on generated scenes (benchmarks/tune_scan_matching.py, seeds 101-103;
-    # BENCHMARKS.md, "Tuning"): with an odometry guess (tracking, moving along an edge, mapping)
-    # no wrong pose was accepted at any threshold >= 0.84; without one (place-recognition
-    # candidates at a start-up) 0.88 let 2.1 % of far pairs through, and only 0.96 let none
-    min_wall_agreement: float = Field(default=0.88, ge=0.0, le=1.0, description="with an initial guess")
+    # Chosen on generated scenes (benchmarks/tune_scan_matching.py, seeds 101-103, 1,800 near and
+    # 3,000 far pairs; BENCHMARKS.md, "Tuning"). With an odometry guess (tracking, moving along an
+    # edge, mapping) 0.90 accepted no wrong pose and 95 % of the right ones (0.88: 1 wrong of 1,800).
+    # Without one (place-recognition candidates) 0.96 together with min_score 0.40 accepted no wrong
+    # pose of 4,800 at near recall 0.52 (at min_score 0.20 it let 2 far pairs through).
+    min_wall_agreement: float = Field(default=0.90, ge=0.0, le=1.0, description="with an initial guess")
     min_wall_agreement_no_guess: float = Field(default=0.96, ge=0.0, le=1.0, description="without an initial guess")
     min_overlap: float = Field(default=0.2, ge=0.0, le=1.0, description="shared known area over the smaller one")
     min_matched_walls: int = Field(default=60, ge=0, description="agreeing occupied cells, both ways")
-    min_score: float = Field(default=0.2, ge=0.0, le=1.0, description="wall agreement x overlap")
+    min_score: float = Field(default=0.4, ge=0.0, le=1.0, description="wall agreement x overlap, without a guess")
     # with an odometry guess, a place seen from a few metres away through other doors shares little
     # known area yet its walls agree (0.13-0.18 overlap, agreement ~1, 140+ walls in a ring building)
     min_overlap_guess: float = Field(default=0.1, ge=0.0, le=1.0, description="min_overlap with an initial guess")

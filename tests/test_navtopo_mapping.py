@@ -177,6 +177,47 @@ def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_veri
             maintainer._correct(None)
         return seen
 
-    assert limits(MappingConfig(), [0.25, 0.25]) == [0.5, 0.5]  # off: max_correction alone
-    gated = MappingConfig(correction_per_metre=0.2, correction_base=0.05)
+    assert limits(MappingConfig(correction_per_metre=None), [0.25, 0.25]) == [0.5, 0.5]  # off: max_correction alone
+    gated = MappingConfig(correction_per_metre=0.2, correction_base=0.05)  # the defaults
     assert limits(gated, [0.25, 0.25, 5.0]) == pytest.approx([0.1, 0.15, 0.5])  # 0.05 + 0.2 x 0.25, x 0.5; capped
+
+
+def corridor_with_side_room(tmp_path: Path) -> Path:
+    """A 14 m corridor and, through a 1 m door at x = 4.5, a 5 x 4 m room whose far corner the
+    corridor cannot see."""
+    spec = {
+        "format": "navtopo-scenario/1",
+        "name": "side_room",
+        "world": {
+            "rooms": [
+                {"center": [6.5, 4.5], "size": [5.0, 4.0]},  # x 4-9, y 2.5-6.5
+                {"center": [4.5, 1.75], "size": [1.0, 1.5]},  # the door through the wall
+            ],
+            "corridors": [{"points": [[-1, 0], [15, 0]], "width": 2.0}],
+            "obstacles": [{"center": [8.0, 1.8], "size": [0.4, 0.4], "height": 1.0}],
+        },
+        "mapping_route": {"waypoints": [[0.5, 0], [13, 0]]},
+        "trials": [],
+    }
+    path = tmp_path / "side_room.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+@pytest.mark.parametrize("seen_only", [True, False])
+def test_a_room_entered_through_a_door_gets_a_location_of_its_own(tmp_path, seen_only):
+    # from the corridor the room is seen only through its door: with seen_only (the default) the
+    # robot in the room's far part is outside the corridor's location and maps the room as a place
+    scenario = load_scenario(corridor_with_side_room(tmp_path))
+    system = NavTopo.create(NavTopoConfig(descriptor="scan_context", mapping={"seen_only": seen_only}))
+    true_at: dict = {}
+    with Simulator(scenario) as sim:
+        sim.reset([0.5, 0.0, 0.0])
+        drive(system, sim, [[0.5, 0.0], [4.5, 0.0], [4.5, 3.2], [8.0, 5.7], [4.5, 3.2], [4.5, 0.0], [13.0, 0.0]], true_at)
+        assert sim.collisions == 0
+    in_room = [v for v in system.graph.vertices if true_at[v.stamp][1] > 2.6]
+    assert bool(in_room) == seen_only
+    for u, v, pose_uv in system.graph.edges():
+        truth = se2.between(true_at[system.graph.vertices[u].stamp], true_at[system.graph.vertices[v].stamp])
+        error = se2.between(truth, pose_uv)
+        assert np.hypot(error[0], error[1]) < 0.3 and abs(np.degrees(error[2])) < 3.0
