@@ -224,9 +224,7 @@ class Startup:
         for located in found:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
-                self.hypotheses.append(
-                    Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex})
-                )
+                self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex}))
                 self.seen += 1
 
     def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
