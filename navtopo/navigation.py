@@ -44,7 +44,7 @@ from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.grid_planning import GridFrame, plan_path
 from navtopo.grid_search import inflate_free
-from navtopo.local_grid import FREE, GridConfig, grid_from_points, obstacle_points, xy_to_cell
+from navtopo.local_grid import FREE, OCCUPIED, GridConfig, grid_from_points, obstacle_points, xy_to_cell
 from navtopo.mapping import GraphMaintainer
 from navtopo.obstacles import ObstacleMemory
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
@@ -446,7 +446,15 @@ class Navigator:
         grid_config = self.maintainer.grid_config
         grid = grid_from_points(obs.points, grid_config)
         frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        passable = inflate_free(grid == FREE, self.local.wide, frame.resolution)
+        # the local planner's fallbacks: with its margin, then the robot's radius alone (a narrow
+        # door); in the scan's free space, then between the walls it saw (a door seen at a slant
+        # leaves little free space); the ends in free space it saw
+        masks = [
+            inflate_free(space, radius, frame.resolution)
+            for radius in (self.local.wide, self.local.tight)
+            for space in (grid == FREE, grid != OCCUPIED)
+        ]
+        passable = masks[-1] & (grid == FREE)
         angles = np.radians(np.arange(0.0, 360.0, 15.0))
         reach = self.startup.config.explore_distance
         directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
@@ -467,7 +475,7 @@ class Navigator:
         forward = np.cos(np.tile(angles, 3))[ok]
         order = np.lexsort((-forward, -np.round(novelty / 0.5)))  # novelty in 0.5 m steps, then forward
         for k in ok[order][:8]:
-            planned = plan_path([passable], frame, np.zeros(2), ends[k], snap_cells=5)
+            planned = plan_path(masks, frame, np.zeros(2), ends[k], snap_cells=5)
             if planned is not None:
                 return planned.points
         return None
