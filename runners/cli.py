@@ -170,16 +170,10 @@ def run(
     declares "reached" by its own estimate stops within --stop-tolerance of the goal; success is
     the robot's true position within 0.5 m of the goal when it stops.
     """
-    from runners.executors import ExecutorUnavailable, check_executor
     from runners.run import RunOptions, execute, scenario_fingerprint
     from runners.systems import system_names
 
-    try:
-        check_executor(executor)
-        if ray_address is not None and executor != "ray":
-            raise ExecutorUnavailable("--ray-address: only with --executor ray")
-    except ExecutorUnavailable as exc:
-        fail(str(exc))
+    _check_executor(executor, ray_address)
     limits = {"trial_wall_s": trial_timeout, "trial_memory_mb": trial_memory_mb}
     known = system_names()
     names = [s.strip() for s in systems.split(",") if s.strip()]
@@ -307,6 +301,18 @@ def run(
                 **limits,
             )
             _run_one(scenario, options, execute, pool)
+
+
+def _check_executor(executor: str, ray_address: str | None) -> None:
+    """Refuse an unknown executor, Ray when it is not installed, an address without Ray: one line, exit 2."""
+    from runners.executors import ExecutorUnavailable, check_executor
+
+    try:
+        check_executor(executor)
+        if ray_address is not None and executor != "ray":
+            raise ExecutorUnavailable("--ray-address: only with --executor ray")
+    except ExecutorUnavailable as exc:
+        fail(str(exc))
 
 
 @contextlib.contextmanager
@@ -656,7 +662,9 @@ def sweep_scaling(
         float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
     ] = 1.0,
     setting: Annotated[str, typer.Option(help="precise or noisy")] = "precise",
-    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    workers: Annotated[int | None, typer.Option(help="jobs at once (default: the cores / the cluster's CPUs)", min=1)] = None,
+    executor: Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")] = "local",
+    ray_address: Annotated[str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster")] = None,
     out: Annotated[Path, typer.Option(help="the sweep's folder: scenarios/, <length>m/ runs, report/")] = Path(
         "results/sweep_scaling"
     ),
@@ -694,14 +702,18 @@ def sweep_scaling(
         route_factor=route_factor,
         setting=setting,
         workers=workers,
+        executor=executor,
+        ray_address=ray_address,
         out=out,
     )
+    _check_executor(executor, ray_address)
+    with _executor(options) as pool:
 
-    def run_one(scenario, run_options):
-        _run_one(scenario, run_options, execute)
-        return RunDir(run_options.out or run_options.resume)
+        def run_one(scenario, run_options):
+            _run_one(scenario, run_options, execute, pool)
+            return RunDir(run_options.out or run_options.resume)
 
-    folders = run_scaling(options, run_one)
+        folders = run_scaling(options, run_one)
     _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
 
 
@@ -711,7 +723,9 @@ def sweep_drift(
     levels: Annotated[str, typer.Option(help="odometry-noise settings in order: off, moderate, strong")] = "precise,noisy,strong",
     systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
     trials: Annotated[int, typer.Option(help="navigation trials per level", min=0)] = 5,
-    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    workers: Annotated[int | None, typer.Option(help="jobs at once (default: the cores / the cluster's CPUs)", min=1)] = None,
+    executor: Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")] = "local",
+    ray_address: Annotated[str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster")] = None,
     out: Annotated[Path, typer.Option(help="the sweep's folder: <level>/ runs, report/")] = Path("results/sweep_drift"),
 ) -> None:
     """One scenario under odometry noise off, moderate and strong: success, efficiency, map quality.
@@ -733,13 +747,24 @@ def sweep_drift(
     if unknown:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
     _load(scenario)  # a bad scenario is one line before any work
-    options = DriftOptions(scenario=scenario, levels=level_list, systems=names, trials=trials, workers=workers, out=out)
+    options = DriftOptions(
+        scenario=scenario,
+        levels=level_list,
+        systems=names,
+        trials=trials,
+        workers=workers,
+        executor=executor,
+        ray_address=ray_address,
+        out=out,
+    )
+    _check_executor(executor, ray_address)
+    with _executor(options) as pool:
 
-    def run_one(loaded, run_options):
-        _run_one(loaded, run_options, execute)
-        return RunDir(run_options.out or run_options.resume)
+        def run_one(loaded, run_options):
+            _run_one(loaded, run_options, execute, pool)
+            return RunDir(run_options.out or run_options.resume)
 
-    folders = run_drift(options, run_one)
+        folders = run_drift(options, run_one)
     _sweep_report(folders, out / "report", "drift", "Drift: the same scenario under growing odometry noise")
 
 
