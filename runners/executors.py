@@ -37,6 +37,7 @@ import os
 import queue
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 import time
@@ -285,7 +286,10 @@ RAY_LOOPBACK_ENV = {
 }
 
 
-def _ray_job(fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any) -> Iterator[dict[str, Any]]:
+def _ray_job(fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any, sys_path: list[str]) -> Iterator[dict[str, Any]]:
+    import sys
+
+    sys.path.extend(p for p in sys_path if p not in sys.path)  # as a spawned local worker gets it
     yield from fn(job)
 
 
@@ -323,9 +327,12 @@ class RayExecutor(Executor):
                 raise ExecutorUnavailable(f"--ray-address {address}: cannot join the Ray cluster: {one_line(exc)}") from None
         super().__init__(slots or int(ray.cluster_resources().get("CPU", 1)))
         self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_job)
+        # a private instance shares this machine: its workers find what this process imports
+        # (e.g. a system registered by the user's module); on a cluster each node has its own
+        self._sys_path = list(sys.path) if address is None else []
 
     def _start(self, run: _Running) -> None:
-        run.handle = self._task.remote(run.fn, run.job)
+        run.handle = self._task.remote(run.fn, run.job, self._sys_path)
         threading.Thread(target=self._pump, args=(run,), daemon=True).start()
 
     def _pump(self, run: _Running) -> None:
