@@ -28,6 +28,16 @@ console = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
 
 
+# the executor options of `run` and `sweep`
+WorkersOption = Annotated[
+    int | None, typer.Option(help="jobs at once (default: the cores; with --executor ray: the cluster's CPUs)", min=1)
+]
+ExecutorOption = Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")]
+RayAddressOption = Annotated[
+    str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster (default: a private one)")
+]
+
+
 def fail(message: str, code: int = 2) -> NoReturn:
     err.print(f"[bold red]error:[/] {escape(one_line(message))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
@@ -120,13 +130,9 @@ def run(
     seeds: Annotated[str | None, typer.Option(help="comma-separated seeds: one run per seed")] = None,
     out: Annotated[Path | None, typer.Option(help="results folder (default results/<scenario>/<run-id>)")] = None,
     resume: Annotated[Path | None, typer.Option(help="finish an interrupted run folder")] = None,
-    workers: Annotated[
-        int | None, typer.Option(help="jobs at once (default: the cores; with --executor ray: the cluster's CPUs)", min=1)
-    ] = None,
-    executor: Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")] = "local",
-    ray_address: Annotated[
-        str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster (default: a private one)")
-    ] = None,
+    workers: WorkersOption = None,
+    executor: ExecutorOption = "local",
+    ray_address: RayAddressOption = None,
     trial_timeout: Annotated[
         float, typer.Option("--trial-timeout-s", help="wall-clock limit of one trial: its worker is killed past it", min=1.0)
     ] = 3600.0,
@@ -662,9 +668,9 @@ def sweep_scaling(
         float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
     ] = 1.0,
     setting: Annotated[str, typer.Option(help="precise or noisy")] = "precise",
-    workers: Annotated[int | None, typer.Option(help="jobs at once (default: the cores / the cluster's CPUs)", min=1)] = None,
-    executor: Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")] = "local",
-    ray_address: Annotated[str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster")] = None,
+    workers: WorkersOption = None,
+    executor: ExecutorOption = "local",
+    ray_address: RayAddressOption = None,
     out: Annotated[Path, typer.Option(help="the sweep's folder: scenarios/, <length>m/ runs, report/")] = Path(
         "results/sweep_scaling"
     ),
@@ -675,7 +681,6 @@ def sweep_scaling(
     the same command again), then OUT/report/: scaling.md and scaling.csv (fitted growth exponents),
     the log-log plot, and the usual tables, plots and report.html of all the runs."""
     from runners.protocol import SETTINGS
-    from runners.run import RunDir, execute
     from runners.sweep import ScalingOptions, run_scaling
     from runners.systems import system_names
 
@@ -706,14 +711,7 @@ def sweep_scaling(
         ray_address=ray_address,
         out=out,
     )
-    _check_executor(executor, ray_address)
-    with _executor(options) as pool:
-
-        def run_one(scenario, run_options):
-            _run_one(scenario, run_options, execute, pool)
-            return RunDir(run_options.out or run_options.resume)
-
-        folders = run_scaling(options, run_one)
+    folders = _run_sweep(options, run_scaling)
     _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
 
 
@@ -723,9 +721,9 @@ def sweep_drift(
     levels: Annotated[str, typer.Option(help="odometry-noise settings in order: off, moderate, strong")] = "precise,noisy,strong",
     systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
     trials: Annotated[int, typer.Option(help="navigation trials per level", min=0)] = 5,
-    workers: Annotated[int | None, typer.Option(help="jobs at once (default: the cores / the cluster's CPUs)", min=1)] = None,
-    executor: Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")] = "local",
-    ray_address: Annotated[str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster")] = None,
+    workers: WorkersOption = None,
+    executor: ExecutorOption = "local",
+    ray_address: RayAddressOption = None,
     out: Annotated[Path, typer.Option(help="the sweep's folder: <level>/ runs, report/")] = Path("results/sweep_drift"),
 ) -> None:
     """One scenario under odometry noise off, moderate and strong: success, efficiency, map quality.
@@ -734,7 +732,6 @@ def sweep_drift(
     OUT/report/: drift.md and drift.csv, the per-level plot, Figure 1 (the metric grid built under
     the strongest drift over the GT map beside the graph of locations) and the usual report."""
     from runners.protocol import SETTINGS
-    from runners.run import RunDir, execute
     from runners.sweep import DriftOptions, run_drift
     from runners.systems import system_names
 
@@ -757,15 +754,22 @@ def sweep_drift(
         ray_address=ray_address,
         out=out,
     )
-    _check_executor(executor, ray_address)
+    folders = _run_sweep(options, run_drift)
+    _sweep_report(folders, out / "report", "drift", "Drift: the same scenario under growing odometry noise")
+
+
+def _run_sweep(options, run_sweep) -> list[Path]:
+    """Every run of a sweep on one executor (opened once: one Ray instance for the whole sweep)."""
+    from runners.run import RunDir, execute
+
+    _check_executor(options.executor, options.ray_address)
     with _executor(options) as pool:
 
-        def run_one(loaded, run_options):
-            _run_one(loaded, run_options, execute, pool)
+        def run_one(scenario, run_options):
+            _run_one(scenario, run_options, execute, pool)
             return RunDir(run_options.out or run_options.resume)
 
-        folders = run_drift(options, run_one)
-    _sweep_report(folders, out / "report", "drift", "Drift: the same scenario under growing odometry noise")
+        return run_sweep(options, run_one)
 
 
 def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:

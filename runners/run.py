@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import hashlib
+import itertools
 import os
 import platform
 import shutil
@@ -348,17 +349,18 @@ def navigate(
     if not jobs:
         return
     say("navigation", sum(len(j.trials) for j in jobs))
-    running: dict[int, int | None] = {}  # id(job) -> the trial it started last
+    started: dict[int, int] = {}  # job number -> the trial it started last
+    numbers = itertools.count()
     for job in jobs:
-        pool.submit(job, trial_job, job)
+        pool.submit((next(numbers), job), trial_job, job)
     for event in pool.events():
         _jobs_progress(pool, on_jobs)
         if event is None:
             continue
-        job, message = event.key, event.message
+        (number, job), message = event.key, event.message
         if message is not None:
             if message["kind"] == "started":
-                running[id(job)] = message["trial"]
+                started[number] = message["trial"]
             elif message["kind"] == "trial":
                 record(message)
             elif message["kind"] == "memory":
@@ -376,17 +378,19 @@ def navigate(
             for index in unrun:
                 record(failed(job.system, index, "error", detail))
             continue
-        # crashed or timeout: the trial that was running fails (the first unrun one if none had
-        # started, so that every new job has one trial fewer); the rest run in a fresh process
-        current = running.get(id(job))
-        culprit = current if current in unrun else unrun[0]
-        if kind == "crashed" and options.trial_memory_mb is not None:
-            detail += f" (under --trial-memory-mb {options.trial_memory_mb:g}: perhaps out of memory)"
-        record(failed(job.system, culprit, kind, detail))
+        # crashed or timeout: the trial that was running fails; if the worker died before its first
+        # trial, that first trial fails (so that a job that cannot start does not come back for
+        # ever); between two trials, no trial is to blame. The rest runs in a fresh process.
+        current = started.get(number)
+        culprit = current if current in unrun else (unrun[0] if current is None else None)
+        if culprit is not None:
+            if kind == "crashed" and options.trial_memory_mb is not None:
+                detail += f" (under --trial-memory-mb {options.trial_memory_mb:g}: perhaps out of memory)"
+            record(failed(job.system, culprit, kind, detail))
         rest = [i for i in unrun if i != culprit]
         if rest:
             retry = dataclasses.replace(job, trials=rest)
-            pool.submit(retry, trial_job, retry)
+            pool.submit((next(numbers), retry), trial_job, retry)
 
 
 class MapsFromError(ValueError):
