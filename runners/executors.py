@@ -37,6 +37,7 @@ import os
 import queue
 import shutil
 import signal
+import socket
 import sys
 import tempfile
 import threading
@@ -286,6 +287,17 @@ RAY_LOOPBACK_ENV = {
 }
 
 
+def _probe(address: str, timeout_s: float = 5.0) -> None:
+    """Raise ConnectionError at once if nothing listens at HOST:PORT (``auto`` is not probed)."""
+    if address == "auto" or ":" not in address:
+        return
+    host, port = address.rsplit(":", 1)
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except (OSError, ValueError) as exc:
+        raise ConnectionError(f"nothing answers at {address} ({exc})") from None
+
+
 def _ray_job(fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any, sys_path: list[str]) -> Iterator[dict[str, Any]]:
     import sys
 
@@ -303,28 +315,39 @@ class RayExecutor(Executor):
         check_executor("ray")
         for key, value in RAY_LOOPBACK_ENV.items():
             os.environ.setdefault(key, value)
+        loopback = address is None or address.rsplit(":", 1)[0] in ("127.0.0.1", "localhost")
+        if loopback:
+            # else Ray swaps a loopback address for the one it guesses from a UDP "connect" to a
+            # public address (read once, when Ray is imported; see ray._private.services)
+            os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
         self._temp_dir = None
+        self._ray = None
+        self._queued, self._running = deque(), {}  # close() may run before the executor is complete
         if address is None:
             self._temp_dir = tempfile.mkdtemp(prefix="ntb-ray-")  # short: Ray's socket paths must fit 107 bytes
             os.environ["RAY_TMPDIR"] = self._temp_dir
         import ray
 
         self._ray = ray
-        if address is None:
-            ray.init(
-                address="local",
-                num_cpus=slots or os.cpu_count() or 1,
-                include_dashboard=False,
-                _node_ip_address="127.0.0.1",
-                _temp_dir=self._temp_dir,
-                log_to_driver=False,
-                logging_level="WARNING",
-            )
-        else:
-            try:
-                ray.init(address=address, log_to_driver=False, logging_level="WARNING")
-            except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise ExecutorUnavailable(f"--ray-address {address}: cannot join the Ray cluster: {one_line(exc)}") from None
+        try:
+            if address is None:
+                ray.init(
+                    address="local",
+                    num_cpus=slots or os.cpu_count() or 1,
+                    include_dashboard=False,
+                    _node_ip_address="127.0.0.1",
+                    _temp_dir=self._temp_dir,
+                    log_to_driver=False,
+                    logging_level="WARNING",
+                )
+            else:
+                _probe(address)  # Ray itself waits minutes for an address where nothing listens
+                extra = {"_node_ip_address": "127.0.0.1"} if loopback else {}
+                ray.init(address=address, log_to_driver=False, logging_level="WARNING", **extra)
+        except Exception as exc:  # noqa: BLE001 - no cluster to run on: the command cannot start
+            self.close()
+            where = f"--ray-address {address}: cannot join the Ray cluster" if address else "--executor ray: Ray did not start"
+            raise ExecutorUnavailable(f"{where}: {one_line(exc)}") from None
         super().__init__(slots or int(ray.cluster_resources().get("CPU", 1)))
         self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_job)
         # a private instance shares this machine: its workers find what this process imports
@@ -359,7 +382,7 @@ class RayExecutor(Executor):
 
     def close(self) -> None:
         super().close()
-        if self._ray.is_initialized():
+        if self._ray is not None and self._ray.is_initialized():
             self._ray.shutdown()
         if self._temp_dir is not None:
             for _ in range(3):  # Ray's processes may still write their last files while they end

@@ -217,3 +217,22 @@ def test_jobs_carry_content_not_paths(tmp_path):
     (out / "maps" / "oracle" / "oracle.json").unlink()
     record = run_trial_job(job)["records"][0]
     assert record["success"] and np.isfinite(record["travelled_m"])
+
+
+@pytest.mark.ray
+@pytest.mark.skipif(not HAS_RAY, reason="Ray is not installed (pip install -e '.[ray]')")
+def test_a_ray_address_where_nothing_listens_is_one_line_and_exit_2(tmp_path):
+    results = tmp_path / "results"
+    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--results", str(results)]
+    done = subprocess.run(
+        [*command, "--executor", "ray", "--ray-address", "127.0.0.1:1"], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2, done.stderr
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "--ray-address 127.0.0.1:1: cannot join the Ray cluster" in errors[0], done.stderr
+    assert "Traceback" not in done.stderr and not results.exists()
+
+
+def test_ray_address_without_the_ray_executor_is_refused(tmp_path):
+    result = CliRunner().invoke(app, ["run", "tiny", "--ray-address", "auto", "--results", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "--ray-address: only with --executor ray" in result.output
