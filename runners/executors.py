@@ -44,7 +44,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 EXECUTORS = ("local", "ray")
@@ -92,7 +92,6 @@ class _Running:
     deadline: float | None = None
     limit_s: float | None = None
     handle: Any = None
-    started: float = field(default_factory=time.monotonic)
 
 
 class Executor:
@@ -128,7 +127,6 @@ class Executor:
             while self._queued or self._running:
                 while self._queued and len(self._running) < self.slots:
                     run = self._queued.popleft()
-                    run.started = time.monotonic()
                     self._running[run.id] = run
                     self._start(run)
                 items = []
