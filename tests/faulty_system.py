@@ -19,6 +19,7 @@ class FaultyConfig(OracleConfig):
     abort_at: list[list[float]] = []  # kill the worker process (os.abort: SIGABRT)
     hang_at: list[list[float]] = []  # never return (the wall-clock limit ends it)
     hog_at: list[list[float]] = []  # allocate until the address-space limit refuses
+    abort_while_mapping: bool = False  # kill the mapping worker at the first scan
 
 
 def _near(goal: np.ndarray, points: list[list[float]]) -> bool:
@@ -27,6 +28,11 @@ def _near(goal: np.ndarray, points: list[list[float]]) -> bool:
 
 @register_system("faulty", config=FaultyConfig, privileged=True, description="the oracle, misbehaving on chosen goals (tests)")
 class Faulty(Oracle):
+    def observe(self, obs) -> None:
+        if self.config.abort_while_mapping:
+            os.abort()
+        super().observe(obs)
+
     def set_goal(self, goal: np.ndarray) -> None:
         config: FaultyConfig = self.config
         if _near(goal, config.raise_at):

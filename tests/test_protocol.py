@@ -140,7 +140,9 @@ def _reachable(root: Any, limit: int = 20000) -> list[Any]:
 
 
 def test_a_non_privileged_system_is_told_nothing_derived_from_ground_truth(tiny, mapped):
-    job = TrialJob.packed(scenario=str(tiny.path), system="spy", config={}, map_dir=str(mapped.map_dir("spy")), trials=[0, 1], seed=1)
+    job = TrialJob.packed(
+        scenario=str(tiny.path), system="spy", config={}, map_dir=str(mapped.map_dir("spy")), trials=[0, 1], seed=1
+    )
     Spy.seen.clear()
     result = run_trial_job(job)
     assert [r["success"] for r in result["records"]] == [False, False]  # declared reached far from the goals

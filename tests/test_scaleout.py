@@ -95,6 +95,27 @@ def check_faulty_trials(tmp_path: Path, *flags: str) -> None:
     assert (out / "trajectories" / "faulty" / "trial-4.tum").is_file()
 
 
+def test_a_mapping_job_that_kills_its_worker_fails_that_system_only(tmp_path):
+    from runners.run import RunOptions, execute
+
+    out = tmp_path / "run"
+    options = RunOptions(
+        systems=["faulty", "oracle"], out=out, workers=2, config_overrides={"faulty": {"abort_while_mapping": True}}
+    )
+    run = execute(load_scenario(short_tiny(tmp_path)), options)
+    report = json.loads((out / "mapping" / "faulty.json").read_text())
+    assert report["error"].startswith("crashed: worker process killed by SIGABRT")
+    assert not (out / "maps" / "faulty").exists() and (out / "maps" / "oracle" / "oracle.json").is_file()
+    records = records_of(out)
+    assert all(
+        r["reason"] == "error" and r["detail"].startswith("mapping failed: crashed")
+        for k, r in records.items()
+        if k[0] == "faulty"
+    )
+    assert all(r["success"] for k, r in records.items() if k[0] == "oracle") and len(records) == 6
+    assert run.warnings == 3 and (out / "summary.json").is_file()
+
+
 # ---------------------------------------------------------------------------------------------
 # determinism
 
