@@ -234,9 +234,12 @@ def drive_mapping(
 
 @dataclass
 class MappingJob:
+    """Systems mapping the route together in one drive (lock-step): one system per job when the
+    executor has a slot for each (a cluster), several when it has fewer (on 2 cores a drive costs
+    as much as NavTopo's mapping, so three drives would cost more than one shared)."""
+
     scenario: ScenarioFiles
-    system: str
-    config: dict[str, Any]
+    configs: dict[str, dict[str, Any]]  # system -> its resolved config
     seed: int
     setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own
     modules: list[str] = field(default_factory=list)  # to import first: systems registered outside the runner
@@ -246,19 +249,22 @@ PROGRESS_EVERY_S = 0.5
 
 
 def mapping_job(job: MappingJob) -> Iterator[dict[str, Any]]:
-    """One system maps the route in a worker: yields ``progress`` {travelled_m, route_m} (at most
-    every ``PROGRESS_EVERY_S``), then ``mapped`` {report, map (tar bytes, None if mapping failed)},
-    or ``route_error`` {detail} (the route cannot be driven: a property of the scenario)."""
+    """The job's systems map the route in a worker: yields ``progress`` {travelled_m, route_m} (at
+    most every ``PROGRESS_EVERY_S``), then per system ``mapped`` {system, report, map (tar bytes,
+    None if its mapping failed)}; or ``route_error`` {detail} (the route cannot be driven: a
+    property of the scenario)."""
     from runners.navigation import import_modules
     from runners.protocol import apply_setting
 
     import_modules(job.modules)
-    entry = get_system(job.system)
-    config = entry.config_model.model_validate(job.config)
+    systems = []
+    for name, config in job.configs.items():
+        entry = get_system(name)
+        systems.append(MappingSystem(entry, entry.config_model.model_validate(config)))
     with tempfile.TemporaryDirectory(prefix="navtopo-job-") as folder:
         scenario = apply_setting(job.scenario.load(Path(folder) / "scenario"), job.setting)
         run = RunDir(Path(folder) / "run")
-        drive = drive_mapping(scenario, [MappingSystem(entry, config)], run, job.seed)
+        drive = drive_mapping(scenario, systems, run, job.seed)
         shown = 0.0
         try:
             while True:
@@ -267,10 +273,11 @@ def mapping_job(job: MappingJob) -> Iterator[dict[str, Any]]:
                     shown = time.monotonic()
                     yield {"kind": "progress", "travelled_m": travelled, "route_m": total}
         except StopIteration as finished:
-            report = finished.value[job.system]
+            reports = finished.value
         except RouteError as exc:
             yield {"kind": "route_error", "detail": str(exc)}
             return
-        map_dir = run.map_dir(job.system)
-        archive = pack_dir(map_dir) if "error" not in report and map_dir.is_dir() else None
-        yield {"kind": "mapped", "report": report, "map": archive}
+        for name, report in reports.items():
+            map_dir = run.map_dir(name)
+            archive = pack_dir(map_dir) if "error" not in report and map_dir.is_dir() else None
+            yield {"kind": "mapped", "system": name, "report": report, "map": archive}

@@ -201,10 +201,18 @@ def execute(
         todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
         if todo:
             say("mapping", todo)
-            jobs = {
-                name: MappingJob(files, name, configs[name], seed, setting_override, modules_of(entries[name])) for name in todo
-            }
-            map_systems(run, scenario, jobs, pool, on_mapping, on_jobs)
+            groups = [todo[k :: pool.slots] for k in range(min(pool.slots, len(todo)))]
+            jobs = [
+                MappingJob(
+                    files,
+                    {name: configs[name] for name in group},
+                    seed,
+                    setting_override,
+                    sorted({m for name in group for m in modules_of(entries[name])}),
+                )
+                for group in groups
+            ]
+            map_systems(run, jobs, pool, on_mapping, on_jobs)
         mapping = {name: read_json(run.mapping_path(name)) for name in systems}
         navigate(
             run,
@@ -244,36 +252,41 @@ def _jobs_progress(pool: Executor, on_jobs: Callable[[dict[str, int]], None] | N
 
 def map_systems(
     run: RunDir,
-    scenario: Scenario,
-    jobs: dict[str, MappingJob],
+    jobs: list[MappingJob],
     pool: Executor,
     on_mapping: Callable[[float, float], None] | None,
     on_jobs: Callable[[dict[str, int]], None] | None = None,
 ) -> None:
-    """Stage 1: each system's mapping job; the driver installs each map (whole, atomically) and
-    then its report, so that a report on disk means a complete map beside it."""
-    driven = {name: 0.0 for name in jobs}
-    for name, job in jobs.items():
-        pool.submit(name, mapping_job, job)
+    """Stage 1: the mapping jobs; the driver installs each map (whole, atomically) and then its
+    report, so that a report on disk means a complete map beside it."""
+    driven = {k: 0.0 for k in range(len(jobs))}
+    mapped: set[str] = set()
+    for k, job in enumerate(jobs):
+        pool.submit(k, mapping_job, job)
     for event in pool.events():
         _jobs_progress(pool, on_jobs)
         if event is None:
             continue
-        name, message = event.key, event.message
+        k, message = event.key, event.message
         if message is not None and message["kind"] == "progress":
-            driven[name] = message["travelled_m"]
+            driven[k] = message["travelled_m"]
             if on_mapping is not None:
                 on_mapping(min(driven.values()), message["route_m"])
         elif message is not None and message["kind"] == "mapped":
             if message["map"] is not None:
-                install_dir(message["map"], run.map_dir(name))
-            write_json(run.mapping_path(name), message["report"])
+                install_dir(message["map"], run.map_dir(message["system"]))
+            write_json(run.mapping_path(message["system"]), message["report"])
+            mapped.add(message["system"])
         elif message is not None and message["kind"] == "route_error":
             pool.cancel()
             raise RouteError(message["detail"])
-        elif event.failure is not None:  # the job died or raised outside the system's calls
+        elif event.failure is not None:  # the job died or raised outside the systems' calls
             detail = f"{event.failure.kind}: {event.failure.detail}"
-            write_json(run.mapping_path(name), {"error": detail, "scans": None, "map_bytes": None, "map_disk_bytes": None})
+            for name in jobs[k].configs:
+                if name not in mapped:
+                    write_json(
+                        run.mapping_path(name), {"error": detail, "scans": None, "map_bytes": None, "map_disk_bytes": None}
+                    )
 
 
 def navigate(
