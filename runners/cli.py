@@ -429,12 +429,14 @@ def _run_one(scenario, options, execute, pool=None) -> None:
         jobs_shown = [None]
 
         def on_jobs(counts: dict) -> None:
+            """The executor's jobs (this command's, across the cluster) on the bar of the stage."""
             shown = (counts["done"], counts["running"], counts["failed"])
-            if trial_task is not None and shown != jobs_shown[0]:
+            task, stage = (trial_task, "trials") if trial_task is not None else (mapping_task, "mapping (m)")
+            if task is not None and shown != jobs_shown[0]:
                 jobs_shown[0] = shown
                 progress.update(
-                    trial_task,
-                    description=f"[cyan]{scenario.name}[/] trials (jobs: {counts['done']} done, "
+                    task,
+                    description=f"[cyan]{scenario.name}[/] {stage} (jobs: {counts['done']} done, "
                     f"{counts['running']} running, {counts['failed']} failed)",
                 )
 
