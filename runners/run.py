@@ -271,8 +271,9 @@ def map_systems(
         if message is not None and message["kind"] == "progress":
             driven[k] = message["travelled_m"]
             if on_mapping is not None:
-                on_mapping(min(driven.values()), message["route_m"])
+                on_mapping(min(driven.values()), message["route_m"])  # the slowest drive
         elif message is not None and message["kind"] == "mapped":
+            driven[k] = float("inf")  # this job's drive is over: the bar follows the others
             if message["map"] is not None:
                 install_dir(message["map"], run.map_dir(message["system"]))
             write_json(run.mapping_path(message["system"]), message["report"])
