@@ -145,6 +145,7 @@ class TrialRecord(Model):
     trial: int
     success: bool
     reason: str = ""
+    detail: str | None = None  # one line behind reason error / crashed / timeout / out_of_memory
     start: list[float] | None = None  # [x, y, yaw_deg], scenario frame
     goal: list[float] | None = None
     shortest_m: float | None = None

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sys
@@ -10,6 +11,7 @@ from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 # the heavy modules (scenarios: scipy, shapely, numba; the systems: torch) are imported inside the
@@ -26,13 +28,23 @@ console = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
 
 
+# the executor options of `run` and `sweep`
+WorkersOption = Annotated[
+    int | None, typer.Option(help="jobs at once (default: the cores; with --executor ray: the cluster's CPUs)", min=1)
+]
+ExecutorOption = Annotated[str, typer.Option(help="where jobs run: local (a fresh process each) or ray")]
+RayAddressOption = Annotated[
+    str | None, typer.Option(help="with --executor ray: auto or HOST:PORT of a running cluster (default: a private one)")
+]
+
+
 def fail(message: str, code: int = 2) -> NoReturn:
-    err.print(f"[bold red]error:[/] {one_line(message)}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(one_line(message))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
 def note(message: str) -> None:
-    err.print(f"note: {one_line(message)}", highlight=False, soft_wrap=True)
+    err.print(f"note: {escape(one_line(message))}", highlight=False, soft_wrap=True)
 
 
 def one_line(message: str) -> str:
@@ -118,9 +130,15 @@ def run(
     seeds: Annotated[str | None, typer.Option(help="comma-separated seeds: one run per seed")] = None,
     out: Annotated[Path | None, typer.Option(help="results folder (default results/<scenario>/<run-id>)")] = None,
     resume: Annotated[Path | None, typer.Option(help="finish an interrupted run folder")] = None,
-    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
-    executor: Annotated[str, typer.Option(help="where trials run: local (fresh processes) or ray")] = "local",
-    ray_address: Annotated[str | None, typer.Option(help="address of a running Ray cluster")] = None,
+    workers: WorkersOption = None,
+    executor: ExecutorOption = "local",
+    ray_address: RayAddressOption = None,
+    trial_timeout: Annotated[
+        float, typer.Option("--trial-timeout-s", help="wall-clock limit of one trial: its worker is killed past it", min=1.0)
+    ] = 3600.0,
+    trial_memory_mb: Annotated[
+        float | None, typer.Option(help="address space a trial may add (RLIMIT_AS): past it the trial is out_of_memory", min=1.0)
+    ] = None,
     results: Annotated[Path, typer.Option(help="root of the results folders")] = Path("results"),
     config_file: Annotated[
         Path | None, typer.Option("--config", help="YAML {system: {key: value}} merged over the defaults (see `config`)")
@@ -158,14 +176,11 @@ def run(
     declares "reached" by its own estimate stops within --stop-tolerance of the goal; success is
     the robot's true position within 0.5 m of the goal when it stops.
     """
-    from runners.executors import ExecutorUnavailable, check_executor
     from runners.run import RunOptions, execute, scenario_fingerprint
     from runners.systems import system_names
 
-    try:
-        check_executor(executor)
-    except ExecutorUnavailable as exc:
-        fail(str(exc))
+    _check_executor(executor, ray_address)
+    limits = {"trial_wall_s": trial_timeout, "trial_memory_mb": trial_memory_mb}
     known = system_names()
     names = [s.strip() for s in systems.split(",") if s.strip()]
     unknown = [s for s in names if s not in known]
@@ -237,9 +252,10 @@ def run(
         if ignored:
             err.print(f"note: {', '.join(ignored)} ignored with --resume (the run's manifest decides)", highlight=False)
         options = RunOptions(
-            systems=manifest["systems"], resume=resume, workers=workers, executor=executor, ray_address=ray_address
+            systems=manifest["systems"], resume=resume, workers=workers, executor=executor, ray_address=ray_address, **limits
         )
-        _run_one(scenario, options, execute)
+        with _executor(options) as pool:
+            _run_one(scenario, options, execute, pool)
         return
     if not scenarios:
         fail("give at least one SCENARIO (see `navtopo-bench scenario list`)")
@@ -272,25 +288,50 @@ def run(
             )
         except MapsFromError as exc:
             fail(str(exc))
-    for scenario in loaded:
-        for setting_name in setting_list:
-            for s in seed_list:
-                options = RunOptions(
-                    systems=names,
-                    trials=trials,
-                    seed=s,
-                    out=out,
-                    resume=resume,
-                    workers=workers,
-                    executor=executor,
-                    ray_address=ray_address,
-                    results_root=results,
-                    config_overrides=overrides,
-                    setting=setting_name,
-                    protocol=protocol,
-                    maps_from=maps_from,
-                )
-                _run_one(scenario, options, execute)
+    with _executor(RunOptions(systems=names, workers=workers, executor=executor, ray_address=ray_address)) as pool:
+        for scenario, setting_name, s in [(sc, st, sd) for sc in loaded for st in setting_list for sd in seed_list]:
+            options = RunOptions(
+                systems=names,
+                trials=trials,
+                seed=s,
+                out=out,
+                resume=resume,
+                workers=workers,
+                executor=executor,
+                ray_address=ray_address,
+                results_root=results,
+                config_overrides=overrides,
+                setting=setting_name,
+                protocol=protocol,
+                maps_from=maps_from,
+                **limits,
+            )
+            _run_one(scenario, options, execute, pool)
+
+
+def _check_executor(executor: str, ray_address: str | None) -> None:
+    """Refuse an unknown executor, Ray when it is not installed, an address without Ray: one line, exit 2."""
+    from runners.executors import ExecutorUnavailable, check_executor
+
+    try:
+        check_executor(executor)
+        if ray_address is not None and executor != "ray":
+            raise ExecutorUnavailable("--ray-address: only with --executor ray")
+    except ExecutorUnavailable as exc:
+        fail(str(exc))
+
+
+@contextlib.contextmanager
+def _executor(options):
+    """The executor every run of one command shares (one Ray instance, not one per run)."""
+    from runners.executors import ExecutorUnavailable, open_executor
+
+    try:
+        pool = open_executor(options.executor, options.workers, options.ray_address)
+    except ExecutorUnavailable as exc:
+        fail(str(exc))
+    with pool:
+        yield pool
 
 
 def _read_manifest(run_dir: Path, known: list[str]) -> dict:
@@ -353,7 +394,7 @@ def _read_overrides(path: Path, names: list[str]) -> dict:
     return data
 
 
-def _run_one(scenario, options, execute) -> None:
+def _run_one(scenario, options, execute, pool=None) -> None:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from runners.executors import ExecutorUnavailable
@@ -385,10 +426,26 @@ def _run_one(scenario, options, execute) -> None:
                     progress.update(mapping_task, completed=round(scenario.route_length_m))
                 trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=value)
 
+        jobs_shown = [None]
+
+        def on_jobs(counts: dict) -> None:
+            """The executor's jobs (this command's, across the cluster) on the bar of the stage."""
+            shown = (counts["done"], counts["running"], counts["failed"])
+            task, stage = (trial_task, "trials") if trial_task is not None else (mapping_task, "mapping (m)")
+            if task is not None and shown != jobs_shown[0]:
+                jobs_shown[0] = shown
+                progress.update(
+                    task,
+                    description=f"[cyan]{scenario.name}[/] {stage} (jobs: {counts['done']} done, "
+                    f"{counts['running']} running, {counts['failed']} failed)",
+                )
+
         def on_trial(record: dict) -> None:
             if trial_task is not None:
                 progress.advance(trial_task)
             mark = "[green]ok[/]" if record["success"] else f"[red]{record['reason']}[/]"
+            if record.get("detail"):
+                mark += f" ({escape(record['detail'])})"
             eff = record["efficiency"]
             progress.console.print(
                 f"  {record['system']:>12} trial {record['trial']:>3}: {mark}"
@@ -397,7 +454,9 @@ def _run_one(scenario, options, execute) -> None:
             )
 
         try:
-            run_dir = execute(scenario, options, on_mapping=on_mapping, on_trial=on_trial, on_stage=on_stage)
+            run_dir = execute(
+                scenario, options, on_mapping=on_mapping, on_trial=on_trial, on_stage=on_stage, pool=pool, on_jobs=on_jobs
+            )
         except ExecutorUnavailable as exc:
             fail(str(exc))
         except KeyboardInterrupt:
@@ -423,8 +482,12 @@ def _run_one(scenario, options, execute) -> None:
     else:
         print_summary(run_dir.root)
     console.print(f"results: [bold]{run_dir.root}[/]")
-    if run_dir.incomplete:
-        fail(f"{len(run_dir.incomplete)} trial(s) left unrun after a worker died; finish with --resume {run_dir.root}", code=1)
+    if run_dir.warnings:
+        err.print(
+            f"warning: {run_dir.warnings} trial(s) failed in their worker (error, crashed, timeout or out_of_memory; "
+            f"the record's detail says why): {run_dir.trials_path}",
+            highlight=False,
+        )
 
 
 def print_summary(run_dir: Path) -> None:
@@ -607,7 +670,9 @@ def sweep_scaling(
         float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
     ] = 1.0,
     setting: Annotated[str, typer.Option(help="precise or noisy")] = "precise",
-    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    workers: WorkersOption = None,
+    executor: ExecutorOption = "local",
+    ray_address: RayAddressOption = None,
     out: Annotated[Path, typer.Option(help="the sweep's folder: scenarios/, <length>m/ runs, report/")] = Path(
         "results/sweep_scaling"
     ),
@@ -618,7 +683,6 @@ def sweep_scaling(
     the same command again), then OUT/report/: scaling.md and scaling.csv (fitted growth exponents),
     the log-log plot, and the usual tables, plots and report.html of all the runs."""
     from runners.protocol import SETTINGS
-    from runners.run import RunDir, execute
     from runners.sweep import ScalingOptions, run_scaling
     from runners.systems import system_names
 
@@ -645,14 +709,11 @@ def sweep_scaling(
         route_factor=route_factor,
         setting=setting,
         workers=workers,
+        executor=executor,
+        ray_address=ray_address,
         out=out,
     )
-
-    def run_one(scenario, run_options):
-        _run_one(scenario, run_options, execute)
-        return RunDir(run_options.out or run_options.resume)
-
-    folders = run_scaling(options, run_one)
+    folders = _run_sweep(options, run_scaling)
     _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
 
 
@@ -662,7 +723,9 @@ def sweep_drift(
     levels: Annotated[str, typer.Option(help="odometry-noise settings in order: off, moderate, strong")] = "precise,noisy,strong",
     systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
     trials: Annotated[int, typer.Option(help="navigation trials per level", min=0)] = 5,
-    workers: Annotated[int, typer.Option(help="worker processes for the trials", min=1)] = 1,
+    workers: WorkersOption = None,
+    executor: ExecutorOption = "local",
+    ray_address: RayAddressOption = None,
     out: Annotated[Path, typer.Option(help="the sweep's folder: <level>/ runs, report/")] = Path("results/sweep_drift"),
 ) -> None:
     """One scenario under odometry noise off, moderate and strong: success, efficiency, map quality.
@@ -671,7 +734,6 @@ def sweep_drift(
     OUT/report/: drift.md and drift.csv, the per-level plot, Figure 1 (the metric grid built under
     the strongest drift over the GT map beside the graph of locations) and the usual report."""
     from runners.protocol import SETTINGS
-    from runners.run import RunDir, execute
     from runners.sweep import DriftOptions, run_drift
     from runners.systems import system_names
 
@@ -684,14 +746,32 @@ def sweep_drift(
     if unknown:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
     _load(scenario)  # a bad scenario is one line before any work
-    options = DriftOptions(scenario=scenario, levels=level_list, systems=names, trials=trials, workers=workers, out=out)
-
-    def run_one(loaded, run_options):
-        _run_one(loaded, run_options, execute)
-        return RunDir(run_options.out or run_options.resume)
-
-    folders = run_drift(options, run_one)
+    options = DriftOptions(
+        scenario=scenario,
+        levels=level_list,
+        systems=names,
+        trials=trials,
+        workers=workers,
+        executor=executor,
+        ray_address=ray_address,
+        out=out,
+    )
+    folders = _run_sweep(options, run_drift)
     _sweep_report(folders, out / "report", "drift", "Drift: the same scenario under growing odometry noise")
+
+
+def _run_sweep(options, run_sweep) -> list[Path]:
+    """Every run of a sweep on one executor (opened once: one Ray instance for the whole sweep)."""
+    from runners.run import RunDir, execute
+
+    _check_executor(options.executor, options.ray_address)
+    with _executor(options) as pool:
+
+        def run_one(scenario, run_options):
+            _run_one(scenario, run_options, execute, pool)
+            return RunDir(run_options.out or run_options.resume)
+
+        return run_sweep(options, run_one)
 
 
 def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:

@@ -1,25 +1,54 @@
-"""Where trial jobs run: local fresh processes (default), or a Ray cluster (a later milestone).
+"""Where jobs run: fresh local processes (``local``, the default) or a Ray cluster (``ray``).
 
-Each job runs in a process of its own (spawn start method, a one-worker pool per job), so that
-(1) the memory a system uses to load its map is measured in a clean process and (2) a worker
-that dies — killed, out of memory — fails only its own job, not its neighbours'.
+A job is a generator function ``fn(job)`` and its picklable argument. It runs in a process of its
+own — one process per job, so that (1) the memory a system uses to load its map is measured in a
+clean process and (2) a process that dies fails only its own job — and every message it yields
+(a plain dict) reaches the driver as soon as it is yielded: a trial's record and trajectories
+stream back the moment the trial ends, so a crash of the worker, or of the driver, loses at most
+the trial that was running. Jobs never write the results folder; the driver alone does.
 
-Ctrl-C (SIGINT to the runner) stops at once: the workers ignore SIGINT (a terminal sends it to
-the whole process group; the runner decides), queued jobs are cancelled, running workers are
-terminated, and ``KeyboardInterrupt`` reaches the caller. Trials already recorded stay recorded,
-so the run folder resumes with nothing lost.
+Streaming: ``local`` sends each message through a pipe from the spawned process; ``ray`` runs the
+job as a Ray generator task (one ``ObjectRef`` per message, ``max_calls=1`` so that each task gets
+a fresh worker process, ``max_retries=0`` so that a trial that killed its worker is not run
+again). One driver thread per running job reads its stream into one queue; ``Executor.events``
+yields from that queue.
+
+Limits: a message may carry ``"deadline_s"``: the job must yield its next message within that
+many seconds of wall clock, else the executor kills it and reports ``Failure("timeout")``. A job
+whose process dies (a signal, ``os.abort``, an exit) ends with ``Failure("crashed")``; a job that
+raises ends with ``Failure("error")``. The caller decides what a failure means for the work left.
+
+Ctrl-C (SIGINT to the driver) stops at once: local workers ignore SIGINT (a terminal sends it to
+the whole process group; the driver decides), and leaving ``events`` (or ``close``) drops the
+queued jobs and kills the running ones; ``KeyboardInterrupt`` reaches the caller. A local worker
+also exits by itself when its driver is gone (killed with SIGKILL), so nothing runs on unseen.
+
+Ray stays on loopback unless given a cluster's address: before Ray is imported the environment
+turns off its usage statistics and points HTTP proxies at a closed local port; a private instance
+(``--executor ray`` without ``--ray-address``) starts with ``address="local"``, no dashboard, its
+node on 127.0.0.1 and a temporary folder of its own, and is shut down when the executor closes.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import multiprocessing
+import os
+import queue
+import shutil
 import signal
+import socket
+import sys
+import tempfile
 import threading
+import time
+from collections import deque
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
+from dataclasses import dataclass
 from typing import Any
 
 EXECUTORS = ("local", "ray")
+RAY_INSTALL_HINT = "pip install 'navtopo-bench[ray]' (from a clone: pip install -e '.[ray]')"
 
 
 class ExecutorUnavailable(RuntimeError):
@@ -28,77 +57,344 @@ class ExecutorUnavailable(RuntimeError):
 
 def check_executor(executor: str) -> None:
     """Refuse an executor that cannot run, before any work starts."""
-    if executor == "ray":
-        raise ExecutorUnavailable(
-            "--executor ray is not part of this version yet (cluster runs are a later milestone); use --executor local"
-        )
     if executor not in EXECUTORS:
         raise ExecutorUnavailable(f"--executor: unknown executor {executor!r} (choose from {', '.join(EXECUTORS)})")
+    if executor == "ray" and importlib.util.find_spec("ray") is None:
+        raise ExecutorUnavailable(f"--executor ray: Ray is not installed; {RAY_INSTALL_HINT}")
 
 
-def _ignore_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def one_line(exc: BaseException) -> str:
+    return (f"{type(exc).__name__}: {exc}".splitlines() or [type(exc).__name__])[0][:300]
 
 
-class _Workers:
-    """The one-worker pools of the running jobs, so that an interrupted run can end them."""
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.pools: set[ProcessPoolExecutor] = set()
-        self.stopping = False
-
-    def run(self, fn: Callable[[Any], Any], job: Any) -> Any:
-        context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=1, mp_context=context, initializer=_ignore_sigint) as pool:
-            with self.lock:  # submitted (its process started) and registered at once, or not at all
-                if self.stopping:
-                    raise KeyboardInterrupt
-                future = pool.submit(fn, job)
-                self.pools.add(pool)
-            try:
-                return future.result()
-            finally:
-                with self.lock:
-                    self.pools.discard(pool)
-
-    def stop(self) -> None:
-        with self.lock:
-            self.stopping = True
-            pools = list(self.pools)
-        for pool in pools:
-            for process in list(getattr(pool, "_processes", {}).values()):  # the executor keeps no public handle
-                process.terminate()
+@dataclass
+class Failure:
+    kind: str  # "error" (the job raised), "crashed" (its process died), "timeout" (a deadline passed)
+    detail: str  # one line
 
 
-def run_jobs(
-    fn: Callable[[Any], Any],
-    jobs: list[Any],
-    workers: int,
-    executor: str = "local",
-    address: str | None = None,
-    on_poll: Callable[[], None] | None = None,
-    poll_s: float = 0.5,
-) -> Iterator[tuple[Any, Any, BaseException | None]]:
-    """Yield (job, result, error) as jobs finish; ``on_poll`` is called while they run."""
-    check_executor(executor)
-    running = _Workers()
-    threads = ThreadPoolExecutor(max_workers=max(1, workers))
-    try:
-        futures: dict[Future, Any] = {threads.submit(running.run, fn, job): job for job in jobs}
-        pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=poll_s, return_when=FIRST_COMPLETED)
-            if on_poll is not None:
-                on_poll()
-            for future in done:
+@dataclass
+class Event:
+    """A message a job yielded (``message``), or its end (``done``; ``failure`` if it ended early)."""
+
+    key: Any
+    message: dict[str, Any] | None = None
+    done: bool = False
+    failure: Failure | None = None
+
+
+@dataclass
+class _Running:
+    id: int
+    key: Any
+    fn: Callable[[Any], Iterator[dict[str, Any]]]
+    job: Any
+    deadline: float | None = None
+    limit_s: float | None = None
+    handle: Any = None
+
+
+class Executor:
+    """Jobs in, events out: at most ``slots`` jobs run at once; the rest wait in submission order."""
+
+    name = "base"
+
+    def __init__(self, slots: int) -> None:
+        self.slots = max(1, int(slots))
+        self._queued: deque[_Running] = deque()
+        self._running: dict[int, _Running] = {}
+        self._inbox: queue.Queue[tuple[int, str, Any]] = queue.Queue()
+        self._next_id = 0
+        self.counts = {"done": 0, "failed": 0}
+
+    # -- the caller's side -------------------------------------------------------------------
+    def submit(self, key: Any, fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any) -> None:
+        self._next_id += 1
+        self._queued.append(_Running(self._next_id, key, fn, job))
+
+    @property
+    def running(self) -> int:
+        return len(self._running)
+
+    @property
+    def queued(self) -> int:
+        return len(self._queued)
+
+    def events(self, poll_s: float = 0.5) -> Iterator[Event | None]:
+        """Events until every submitted job (including those submitted meanwhile) has ended; None
+        every ``poll_s`` without news, so that the caller can show progress."""
+        try:
+            while self._queued or self._running:
+                while self._queued and len(self._running) < self.slots:
+                    run = self._queued.popleft()
+                    self._running[run.id] = run
+                    self._start(run)
+                items = []
                 try:
-                    yield futures[future], future.result(), None
-                except Exception as exc:  # noqa: BLE001 - reported per job; the run goes on
-                    yield futures[future], None, exc
-    except BaseException:  # Ctrl-C, or the caller stopped early: nothing queued may start
-        threads.shutdown(wait=False, cancel_futures=True)
-        running.stop()
-        raise
+                    items.append(self._inbox.get(timeout=poll_s))
+                    while True:
+                        items.append(self._inbox.get_nowait())
+                except queue.Empty:
+                    pass
+                for run_id, kind, payload in items:  # everything that arrived, before any deadline
+                    run = self._running.get(run_id)
+                    if run is None:
+                        continue  # the rest of a job already ended (killed on its deadline)
+                    if kind == "message":
+                        run.limit_s = payload.pop("deadline_s", None)
+                        run.deadline = time.monotonic() + run.limit_s if run.limit_s else None
+                        yield Event(run.key, message=payload)
+                    else:
+                        del self._running[run_id]
+                        self.counts["failed" if payload is not None else "done"] += 1
+                        yield Event(run.key, done=True, failure=payload)
+                now = time.monotonic()
+                for run in [r for r in self._running.values() if r.deadline is not None and now > r.deadline]:
+                    del self._running[run.id]
+                    self._kill(run)
+                    self.counts["failed"] += 1
+                    yield Event(
+                        run.key, done=True, failure=Failure("timeout", f"passed its wall-clock limit of {run.limit_s:g} s")
+                    )
+                if not items:
+                    yield None
+        except BaseException:  # Ctrl-C, or the caller stopped early: nothing queued may start
+            self.cancel()
+            raise
+
+    def cancel(self) -> None:
+        """Drop the queued jobs and kill the running ones."""
+        self._queued.clear()
+        running, self._running = list(self._running.values()), {}
+        for run in running:
+            self._kill(run)
+
+    def close(self) -> None:
+        self.cancel()
+
+    def __enter__(self) -> Executor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- a backend's side --------------------------------------------------------------------
+    def _start(self, run: _Running) -> None:
+        raise NotImplementedError
+
+    def _kill(self, run: _Running) -> None:
+        raise NotImplementedError
+
+    def _put(self, run: _Running, kind: str, payload: Any) -> None:
+        self._inbox.put((run.id, kind, payload))
+
+
+# ---------------------------------------------------------------------------------------------
+# local: a spawned process per job, messages through a pipe
+
+
+def _exit_with_driver() -> None:
+    """End this worker if its driver dies (SIGKILL leaves orphans that nobody reads)."""
+    driver = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(1.0)
+            if os.getppid() != driver:
+                os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def _local_worker(fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any, sender: Any) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_driver()
+    try:
+        for message in fn(job):
+            sender.send(("message", message))
+        sender.send(("end", None))
+    except Exception as exc:  # noqa: BLE001 - reported as the job's failure
+        sender.send(("raised", one_line(exc)))
     finally:
-        threads.shutdown(wait=True)
+        sender.close()
+
+
+def death(exitcode: int | None) -> str:
+    """How a process ended, in words: 'killed by SIGABRT', 'exited with status 3'."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            return f"worker process killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"worker process killed by signal {-exitcode}"
+    return f"worker process exited with status {exitcode} before finishing its job"
+
+
+class LocalExecutor(Executor):
+    name = "local"
+
+    def __init__(self, slots: int | None = None) -> None:
+        super().__init__(slots or os.cpu_count() or 1)
+        self._context = multiprocessing.get_context("spawn")
+
+    def _start(self, run: _Running) -> None:
+        receiver, sender = self._context.Pipe(duplex=False)
+        process = self._context.Process(target=_local_worker, args=(run.fn, run.job, sender), name=f"job-{run.id}")
+        process.start()
+        sender.close()  # the worker holds the only sending end: its death ends our reads
+        run.handle = process
+        threading.Thread(target=self._pump, args=(run, receiver, process), daemon=True).start()
+
+    def _pump(self, run: _Running, receiver: Any, process: Any) -> None:
+        ending: tuple[str, Any] | None = None
+        try:
+            while True:
+                kind, payload = receiver.recv()
+                if kind != "message":
+                    ending = (kind, payload)
+                    break
+                self._put(run, "message", payload)
+        except (EOFError, OSError):
+            pass
+        finally:
+            receiver.close()
+        process.join()
+        if ending is not None and ending[0] == "end":
+            self._put(run, "end", None)
+        elif ending is not None:
+            self._put(run, "end", Failure("error", ending[1]))
+        else:
+            self._put(run, "end", Failure("crashed", death(process.exitcode)))
+
+    def _kill(self, run: _Running) -> None:
+        if run.handle is not None and run.handle.is_alive():
+            run.handle.kill()
+
+
+# ---------------------------------------------------------------------------------------------
+# ray: a generator task per job
+
+# Ray reaches for the network by default (usage statistics, cloud metadata probes from its
+# dashboard, proxies); these keep a driver and a private instance on loopback.
+RAY_LOOPBACK_ENV = {
+    "RAY_USAGE_STATS_ENABLED": "0",
+    "RAY_USAGE_STATS_REPORT_URL": "http://127.0.0.1:9/",
+    "http_proxy": "http://127.0.0.1:9",
+    "https_proxy": "http://127.0.0.1:9",
+    "no_proxy": "127.0.0.1,localhost",
+    "RAY_AUTH_MODE": "disabled",
+}
+
+
+def _probe(address: str, timeout_s: float = 5.0) -> None:
+    """Raise ConnectionError at once if nothing listens at HOST:PORT (``auto`` is not probed)."""
+    if address == "auto" or ":" not in address:
+        return
+    host, port = address.rsplit(":", 1)
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except (OSError, ValueError) as exc:
+        raise ConnectionError(f"nothing answers at {address} ({exc})") from None
+
+
+def _ray_job(fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any, sys_path: list[str]) -> Iterator[dict[str, Any]]:
+    import sys
+
+    sys.path.extend(p for p in sys_path if p not in sys.path)  # as a spawned local worker gets it
+    yield from fn(job)
+
+
+class RayExecutor(Executor):
+    """Jobs as Ray tasks. ``address`` None: a private local instance of ``slots`` CPUs (default: the
+    machine's cores); else a running cluster (``auto`` or HOST:PORT), whose CPUs set the slots."""
+
+    name = "ray"
+
+    def __init__(self, slots: int | None = None, address: str | None = None) -> None:
+        check_executor("ray")
+        for key, value in RAY_LOOPBACK_ENV.items():
+            os.environ.setdefault(key, value)
+        loopback = address is None or address.rsplit(":", 1)[0] in ("127.0.0.1", "localhost")
+        if loopback:
+            # else Ray swaps a loopback address for the one it guesses from a UDP "connect" to a
+            # public address (read once, when Ray is imported; see ray._private.services)
+            os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+        self._temp_dir = None
+        self._ray = None
+        self._queued, self._running = deque(), {}  # close() may run before the executor is complete
+        if address is None:
+            self._temp_dir = tempfile.mkdtemp(prefix="ntb-ray-")  # short: Ray's socket paths must fit 107 bytes
+            os.environ["RAY_TMPDIR"] = self._temp_dir
+        import ray
+
+        self._ray = ray
+        try:
+            if address is None:
+                ray.init(
+                    address="local",
+                    num_cpus=slots or os.cpu_count() or 1,
+                    include_dashboard=False,
+                    _node_ip_address="127.0.0.1",
+                    _temp_dir=self._temp_dir,
+                    log_to_driver=False,
+                    logging_level="WARNING",
+                )
+            else:
+                _probe(address)  # Ray itself waits minutes for an address where nothing listens
+                extra = {"_node_ip_address": "127.0.0.1"} if loopback else {}
+                ray.init(address=address, log_to_driver=False, logging_level="WARNING", **extra)
+        except Exception as exc:  # noqa: BLE001 - no cluster to run on: the command cannot start
+            self.close()
+            where = f"--ray-address {address}: cannot join the Ray cluster" if address else "--executor ray: Ray did not start"
+            raise ExecutorUnavailable(f"{where}: {one_line(exc)}") from None
+        super().__init__(slots or int(ray.cluster_resources().get("CPU", 1)))
+        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_ray_job)
+        # a private instance shares this machine: its workers find what this process imports
+        # (e.g. a system registered by the user's module); on a cluster each node has its own
+        self._sys_path = list(sys.path) if address is None else []
+
+    def _start(self, run: _Running) -> None:
+        run.handle = self._task.remote(run.fn, run.job, self._sys_path)
+        threading.Thread(target=self._pump, args=(run,), daemon=True).start()
+
+    def _pump(self, run: _Running) -> None:
+        ray = self._ray
+        try:
+            for ref in run.handle:
+                self._put(run, "message", ray.get(ref))
+        except ray.exceptions.RayTaskError as exc:  # the job raised: its own exception, one line
+            cause = exc.cause if isinstance(exc.cause, BaseException) else exc
+            self._put(run, "end", Failure("error", one_line(cause)))
+        except ray.exceptions.RayError as exc:  # the worker died, or its node
+            self._put(run, "end", Failure("crashed", f"worker process died ({type(exc).__name__})"))
+        except Exception as exc:  # noqa: BLE001 - the connection to Ray ended
+            self._put(run, "end", Failure("crashed", one_line(exc)))
+        else:
+            self._put(run, "end", None)
+
+    def _kill(self, run: _Running) -> None:
+        if run.handle is not None:
+            try:
+                self._ray.cancel(run.handle, force=True)
+            except Exception:  # noqa: BLE001 - already finished
+                pass
+
+    def close(self) -> None:
+        super().close()
+        if self._ray is not None and self._ray.is_initialized():
+            self._ray.shutdown()
+        if self._temp_dir is not None:
+            for _ in range(3):  # Ray's processes may still write their last files while they end
+                shutil.rmtree(self._temp_dir, ignore_errors=True)
+                if not os.path.exists(self._temp_dir):
+                    break
+                time.sleep(0.5)
+
+
+def open_executor(executor: str = "local", workers: int | None = None, address: str | None = None) -> Executor:
+    """The executor of that name (``check_executor`` first); close it (or use ``with``) when done."""
+    check_executor(executor)
+    if executor == "ray":
+        return RayExecutor(workers, address)
+    if address is not None:
+        raise ExecutorUnavailable("--ray-address: only with --executor ray")
+    return LocalExecutor(workers)

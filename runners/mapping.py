@@ -7,9 +7,10 @@ scenario's route; systems only observe. Each scan reaches every system in the sa
 
 from __future__ import annotations
 
+import tempfile
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Generator, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +20,11 @@ from pydantic import BaseModel
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.types import MEMORY_PARTS
 from runners.metrics import edge_errors, stats_ms
+from runners.payload import ScenarioFiles, pack_dir
 from runners.protocol import TrialProtocol
 from runners.results import RunDir, disk_bytes, write_json
 from runners.sim import MAPPING_STREAM, Simulator
-from runners.systems import GroundTruth, SystemContext, SystemEntry
+from runners.systems import GroundTruth, SystemContext, SystemEntry, get_system
 from scenarios import Scenario
 
 GROWTH_EVERY_M = 10.0
@@ -98,6 +100,23 @@ def run_mapping(
     progress: Callable[[float, float], None] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """Drive the route once; save each system's map and write ``mapping/<system>.json``."""
+    drive = drive_mapping(scenario, systems, run, seed)
+    while True:
+        try:
+            travelled, total = next(drive)
+        except StopIteration as finished:
+            return finished.value
+        if progress is not None:
+            progress(travelled, total)
+
+
+def drive_mapping(
+    scenario: Scenario, systems: list[MappingSystem], run: RunDir, seed: int
+) -> Generator[tuple[float, float], None, dict[str, dict[str, Any]]]:
+    """``run_mapping`` as a generator: yields (metres driven, route length) every tick and returns
+    the reports. The drive depends on the seed and the route only, never on the systems
+    observing it, so each system mapped alone (a mapping job) gets the very scans it would get
+    beside the others."""
     robot = scenario.spec.robot
     sim = Simulator(scenario, seed=seed)
     try:
@@ -141,8 +160,7 @@ def run_mapping(
                     if name not in failures:
                         growth[name].append([round(sim.travelled_m, 2), int(system.mapping_stats().get("map_bytes", 0))])
                 next_growth += GROWTH_EVERY_M
-            if progress is not None:
-                progress(sim.travelled_m, route_length)
+            yield sim.travelled_m, route_length
             command = follower.command(sim.true_pose)
             if follower.reached:
                 break
@@ -208,3 +226,58 @@ def run_mapping(
         return reports
     finally:
         sim.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# a mapping job: (scenario, seed, system) in a worker process
+
+
+@dataclass
+class MappingJob:
+    """Systems mapping the route together in one drive (lock-step): one system per job when the
+    executor has a slot for each (a cluster), several when it has fewer (on 2 cores a drive costs
+    as much as NavTopo's mapping, so three drives would cost more than one shared)."""
+
+    scenario: ScenarioFiles
+    configs: dict[str, dict[str, Any]]  # system -> its resolved config
+    seed: int
+    setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own
+    modules: list[str] = field(default_factory=list)  # to import first: systems registered outside the runner
+
+
+PROGRESS_EVERY_S = 0.5
+
+
+def mapping_job(job: MappingJob) -> Iterator[dict[str, Any]]:
+    """The job's systems map the route in a worker: yields ``progress`` {travelled_m, route_m} (at
+    most every ``PROGRESS_EVERY_S``), then per system ``mapped`` {system, report, map (tar bytes,
+    None if its mapping failed)}; or ``route_error`` {detail} (the route cannot be driven: a
+    property of the scenario)."""
+    from runners.navigation import import_modules
+    from runners.protocol import apply_setting
+
+    import_modules(job.modules)
+    systems = []
+    for name, config in job.configs.items():
+        entry = get_system(name)
+        systems.append(MappingSystem(entry, entry.config_model.model_validate(config)))
+    with tempfile.TemporaryDirectory(prefix="navtopo-job-") as folder:
+        scenario = apply_setting(job.scenario.load(Path(folder) / "scenario"), job.setting)
+        run = RunDir(Path(folder) / "run")
+        drive = drive_mapping(scenario, systems, run, job.seed)
+        shown = 0.0
+        try:
+            while True:
+                travelled, total = next(drive)
+                if time.monotonic() - shown >= PROGRESS_EVERY_S:
+                    shown = time.monotonic()
+                    yield {"kind": "progress", "travelled_m": travelled, "route_m": total}
+        except StopIteration as finished:
+            reports = finished.value
+        except RouteError as exc:
+            yield {"kind": "route_error", "detail": str(exc)}
+            return
+        for name, report in reports.items():
+            map_dir = run.map_dir(name)
+            archive = pack_dir(map_dir) if "error" not in report and map_dir.is_dir() else None
+            yield {"kind": "mapped", "system": name, "report": report, "map": archive}

@@ -231,6 +231,7 @@ def trial_record(
     *,
     success: bool,
     reason: str,
+    detail: str | None = None,
     travelled_m: float = 0.0,
     final_distance_m: float | None = None,
     collisions: int = 0,
@@ -246,7 +247,9 @@ def trial_record(
 
     tracking_error_m: the distance between the system's own pose estimate and the truth at every
     tick (systems with a map-frame estimate only); initial_pose_error: the protocol's error
-    [dx, dy, dyaw] added to the initial pose the system was given (None: it was given none)."""
+    [dx, dy, dyaw] added to the initial pose the system was given (None: it was given none);
+    detail: one line on a failure the reason names only (``error``, ``crashed``, ``timeout`` of
+    the wall clock, ``out_of_memory``): the exception, the signal, the limit."""
     eff = efficiency(trial.shortest_m, travelled_m) if success else None
     to_goal = None
     if success and final_distance_m is not None:
@@ -258,6 +261,7 @@ def trial_record(
         "trial": index,
         "success": bool(success),
         "reason": reason,
+        "detail": detail,
         "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
         "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
         "shortest_m": round(trial.shortest_m, 4),

@@ -6,18 +6,26 @@ the protocol's seeded error, ``runners.protocol``); the loop observes, asks the 
 command and moves the robot until the system declares reached or failed, the robot collides,
 gets stuck or times out. The worker times the map's loading (``map_load_ms``), measures RSS and
 the system's memory breakdown right after its first plan, and the tracking error of the system's
-own pose estimate (where it has one) against the truth at every tick. Any exception inside a
-trial is recorded with its reason and the next trial runs. The worker appends each finished
-record to ``trials.jsonl`` itself (so an interrupted run loses no finished trial) when it shares
-the run folder, and returns the records either way.
+own pose estimate (where it has one) against the truth at every tick. An exception inside a
+trial is recorded (reason ``error``, or ``out_of_memory`` for a ``MemoryError`` under
+``--trial-memory-mb``) with a one-line ``detail``, and the next trial runs.
+
+A job (``TrialJob``) carries the scenario's files and the saved map as bytes (``runners.payload``),
+never a path: the worker unpacks them into a temporary folder of its own and yields, per trial, a
+``started`` message (with the trial's wall-clock limit as ``deadline_s``) and a ``trial`` message
+with the record and the trajectories; the driver writes them (``runners.run``).
 """
 
 from __future__ import annotations
 
 import gc
+import importlib
 import json
+import resource
+import tempfile
 import time
 import traceback
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +38,7 @@ from navtopo import geometry as se2
 from navtopo import grid_search
 from runners.mapping import context_for, disk_report
 from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, judge, timeout_s, trajectory_length, trial_record
+from runners.payload import ScenarioFiles, pack_dir, unpack_dir
 from runners.protocol import TrialProtocol, apply_setting
 from runners.results import MAP_FRAME_FILE, RunDir, write_json, write_map_frame, write_tum
 from runners.sim import TRIAL_STREAM, Simulator
@@ -44,18 +53,44 @@ class MapLoadError(RuntimeError):
 
 @dataclass
 class TrialJob:
-    scenario: str  # path of the scenario file
+    scenario: ScenarioFiles
     system: str
     config: dict[str, Any]
-    map_dir: str
+    map_archive: bytes  # the saved map folder (runners.payload.pack_dir)
     trials: list[int]
     seed: int
-    run_dir: str | None = None  # write records and trajectories there as trials finish
     measure_memory: bool = True
     setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own
     protocol: dict[str, Any] = field(default_factory=lambda: TrialProtocol().as_json())
     anchors: list[list[float]] | None = None  # [[stamp, x, y, yaw], ...]: where the system's locations were made (truth)
+    trial_wall_s: float | None = None  # wall-clock limit of one trial (the executor kills the worker past it)
+    trial_memory_mb: float | None = None  # address space a trial may add (RLIMIT_AS), None: no limit
+    modules: list[str] = field(default_factory=list)  # to import first: systems registered outside the runner
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def packed(cls, scenario: Scenario | str | Path, map_dir: str | Path, **fields: Any) -> TrialJob:
+        """A job of a scenario (or its file) and a map folder on this machine, packed."""
+        loaded = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        return cls(scenario=ScenarioFiles.of(loaded), map_archive=pack_dir(Path(map_dir)), **fields)
+
+
+def import_modules(modules: list[str]) -> None:
+    """Import the modules that register the job's systems (those outside ``runners.systems``)."""
+    for module in modules:
+        importlib.import_module(module)
+
+
+def limit_address_space(extra_mb: float | None) -> None:
+    """Let this process grow its address space by at most ``extra_mb`` from now (RLIMIT_AS, soft
+    limit, as Bench-MR limits its planners): past it allocations fail with ``MemoryError``."""
+    if extra_mb is None:
+        return
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    limit = int(psutil.Process().memory_info().vms + extra_mb * 2**20)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
 
 
 @dataclass
@@ -144,61 +179,85 @@ def _memory(system) -> dict[str, int] | None:
 
 
 def run_trial_job(job: TrialJob) -> dict[str, Any]:
-    """Entry point of a worker process (picklable arguments, JSON-able result)."""
-    scenario = apply_setting(load_scenario(job.scenario), job.setting)
-    protocol = TrialProtocol.from_json(job.protocol)
-    entry = get_system(job.system)
-    config = entry.config_model.model_validate(job.config)
-    sim = Simulator(scenario, seed=job.seed, with_changes=True)  # the navigation stage: world.changes stand
-    run = RunDir(Path(job.run_dir)) if job.run_dir else None
-    records: list[dict[str, Any]] = []
-    memory: dict[str, Any] = {}
-    try:
-        warm_up = getattr(entry.cls, "warm_up", None)
-        if warm_up is not None:
-            warm_up()  # compiled kernels load (or compile) here, not inside the first plan
-        gc.collect()
-        rss_before = _rss()
-        context = context_for(entry, scenario, sim, protocol)
-        anchors = Anchors.from_rows(job.anchors)
-        t0 = time.perf_counter()
-        try:
-            system = entry.load(Path(job.map_dir), config, context)
-        except Exception as exc:  # noqa: BLE001 - whatever the format's reader raises
-            message = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
-            raise MapLoadError(f"the map in {job.map_dir} cannot be loaded: {message}") from None
-        map_load_ms = (time.perf_counter() - t0) * 1e3
-        first = FirstPlan()
-        for index in job.trials:
-            trial = scenario.trials[index]
-            record, rows, estimate = run_one_trial(
-                scenario, sim, entry, system, trial, index, job.seed, protocol, first, rss_before, anchors
-            )
-            records.append(record)
-            if run is not None:
-                write_tum(run.trajectory_path(job.system, index), rows)
-                if estimate is not None and len(estimate):
-                    estimate_path = run.trajectory_path(job.system, index, estimate=True)
-                    write_tum(estimate_path, estimate)
-                    write_map_frame(estimate_path.with_name(MAP_FRAME_FILE), scenario.route_start)
-                run.append_trial(record)
-        stats = system.stats()
-        memory = {
-            "map_bytes": int(stats.get("map_bytes", 0)),
-            "map_load_ms": round(map_load_ms, 3),
-            "rss_bytes": first.rss_bytes,
-            "rss_process_bytes": first.rss_process_bytes,
-            "rss_before_load": rss_before,
-            "memory": first.memory,
-        }
-        if run is not None and job.measure_memory:
-            write_json(
-                run.root / "navigation" / f"{job.system}.json",
-                {**memory, **disk_report(entry, Path(job.map_dir))},
-            )
-    finally:
-        sim.close()
+    """The job in this process, all at once: {"system", "records", "memory"} (tests, tools)."""
+    records, memory = [], {}
+    for message in trial_job(job):
+        if message["kind"] == "map_load_error":
+            raise MapLoadError(f"the saved map of {job.system} cannot be loaded: {message['detail']}")
+        if message["kind"] == "trial":
+            records.append(message["record"])
+        elif message["kind"] == "memory":
+            memory = message["report"]
     return {"system": job.system, "records": records, "memory": memory}
+
+
+def trial_job(job: TrialJob) -> Iterator[dict[str, Any]]:
+    """A navigation job in a worker process: yields ``started`` {trial, deadline_s}, ``trial``
+    {record, trajectory (T, 4), estimate (T, 4) or None} per trial, then ``memory`` {report} (the
+    fresh-process figures, if ``measure_memory``); or a single ``map_load_error`` {detail}."""
+    import_modules(job.modules)
+    with tempfile.TemporaryDirectory(prefix="navtopo-job-") as folder:
+        scenario = apply_setting(job.scenario.load(Path(folder) / "scenario"), job.setting)
+        map_dir = unpack_dir(job.map_archive, Path(folder) / "map")
+        protocol = TrialProtocol.from_json(job.protocol)
+        entry = get_system(job.system)
+        config = entry.config_model.model_validate(job.config)
+        sim = Simulator(scenario, seed=job.seed, with_changes=True)  # the navigation stage: world.changes stand
+        try:
+            warm_up = getattr(entry.cls, "warm_up", None)
+            if warm_up is not None:
+                warm_up()  # compiled kernels load (or compile) here, not inside the first plan
+            gc.collect()
+            rss_before = _rss()
+            context = context_for(entry, scenario, sim, protocol)
+            anchors = Anchors.from_rows(job.anchors)
+            t0 = time.perf_counter()
+            try:
+                system = entry.load(map_dir, config, context)
+            except Exception as exc:  # noqa: BLE001 - whatever the format's reader raises
+                message = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+                yield {"kind": "map_load_error", "detail": message}
+                return
+            map_load_ms = (time.perf_counter() - t0) * 1e3
+            limit_address_space(job.trial_memory_mb)
+            first = FirstPlan()
+            for index in job.trials:
+                yield {"kind": "started", "trial": index, "deadline_s": job.trial_wall_s}
+                trial = scenario.trials[index]
+                record, rows, estimate = run_one_trial(
+                    scenario, sim, entry, system, trial, index, job.seed, protocol, first, rss_before, anchors
+                )
+                yield {"kind": "trial", "record": record, "trajectory": rows, "estimate": estimate}
+            if job.measure_memory:
+                stats = system.stats()
+                memory = {
+                    "map_bytes": int(stats.get("map_bytes", 0)),
+                    "map_load_ms": round(map_load_ms, 3),
+                    "rss_bytes": first.rss_bytes,
+                    "rss_process_bytes": first.rss_process_bytes,
+                    "rss_before_load": rss_before,
+                    "memory": first.memory,
+                }
+                yield {"kind": "memory", "report": {**memory, **disk_report(entry, map_dir)}}
+        finally:
+            sim.close()
+
+
+def write_trial(run: RunDir, scenario: Scenario, message: dict[str, Any]) -> None:
+    """The driver's side of a ``trial`` message: trajectories first, then the record (its line in
+    trials.jsonl is what marks the trial done)."""
+    record = message["record"]
+    write_tum(run.trajectory_path(record["system"], record["trial"]), message["trajectory"])
+    estimate = message.get("estimate")
+    if estimate is not None and len(estimate):
+        estimate_path = run.trajectory_path(record["system"], record["trial"], estimate=True)
+        write_tum(estimate_path, estimate)
+        write_map_frame(estimate_path.with_name(MAP_FRAME_FILE), scenario.route_start)
+    run.append_trial(record)
+
+
+def write_navigation_report(run: RunDir, system: str, report: dict[str, Any]) -> None:
+    write_json(run.root / "navigation" / f"{system}.json", report)
 
 
 def run_one_trial(
@@ -221,7 +280,7 @@ def run_one_trial(
     world_from_map = scenario.route_start
     sim.reset(trial.start, stream=(TRIAL_STREAM, index))
     limit = timeout_s(trial.shortest_m, robot.max_linear)
-    reason = ""
+    reason, detail = "", None
     success = False
     planning_ms: list[float] = []
     first_plan_ms: float | None = None
@@ -289,8 +348,10 @@ def run_one_trial(
         stats = system.stats()
         planning_ms = list(stats.get("planning_ms", []))
         first_plan_ms = stats.get("first_plan_ms", planning_ms[0] if planning_ms else None)
+    except MemoryError:  # past --trial-memory-mb (RLIMIT_AS): recorded, and the run goes on
+        reason, detail = "out_of_memory", "MemoryError: the trial passed its address-space limit (--trial-memory-mb)"
     except Exception as exc:  # a trial that raises is recorded and the run goes on
-        reason = f"error: {type(exc).__name__}: {exc}".splitlines()[0][:300]
+        reason, detail = "error", f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
         traceback.print_exc()
     rows = sim.trajectory_array()
     record = trial_record(
@@ -300,6 +361,7 @@ def run_one_trial(
         seed,
         success=success,
         reason=reason,
+        detail=detail,
         travelled_m=trajectory_length(rows),
         final_distance_m=float(np.hypot(*(sim.true_pose[:2] - trial.goal))),
         collisions=sim.collisions,

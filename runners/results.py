@@ -84,7 +84,7 @@ class RunDir:
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
-        self.incomplete: list[tuple[str, int]] = []  # (system, trial) left unrun by a dead worker
+        self.warnings = 0  # trials of this execution that failed in their worker (their record has a detail)
         self.failed_stages: dict[str, str] = {}  # system -> why its navigation stage could not start
 
     @property

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import hashlib
+import itertools
 import os
 import platform
 import shutil
 import socket
 import subprocess
 from collections.abc import Callable
-from concurrent.futures.process import BrokenProcessPool
-from contextlib import closing
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -19,16 +19,18 @@ from typing import Any
 
 import psutil
 
-from runners.executors import run_jobs
+from runners.executors import Executor, open_executor
 from runners.ground_truth import write_ground_truth
-from runners.mapping import MappingSystem, run_mapping
+from runners.mapping import MappingJob, RouteError, mapping_job
 from runners.metrics import summarize, trial_record
-from runners.navigation import MapLoadError, TrialJob, run_trial_job
+from runners.navigation import TrialJob, trial_job, write_trial
+from runners.payload import ScenarioFiles, install_dir, pack_dir, scenario_files
 from runners.protocol import TrialProtocol, apply_setting, setting_of
-from runners.results import RunDir, TrialsTail, point_latest, read_json, write_json
-from runners.systems import get_system
+from runners.results import RunDir, point_latest, read_json, write_json
+from runners.systems import SystemEntry, get_system
 from scenarios import Scenario
 
+DEFAULT_TRIAL_WALL_S = 3600.0  # far beyond any bundled trial: it catches a hang, not a slow system
 PACKAGES = ["numpy", "scipy", "torch", "kiss-icp", "gtsam", "pybullet", "numba", "shapely", "opencv-python-headless", "pydantic"]
 
 
@@ -39,7 +41,7 @@ class RunOptions:
     seed: int | None = None
     out: Path | None = None
     resume: Path | None = None
-    workers: int = 1
+    workers: int | None = None  # jobs at once; None: the machine's cores (local), the cluster's CPUs (ray)
     executor: str = "local"
     ray_address: str | None = None
     results_root: Path = Path("results")
@@ -47,6 +49,8 @@ class RunOptions:
     setting: str | None = None  # runners.protocol.SETTINGS name; None: the scenario file's own noise
     maps_from: Path | None = None  # reuse the maps of this earlier run of the same scenario, seed and setting
     protocol: TrialProtocol = field(default_factory=TrialProtocol)
+    trial_wall_s: float | None = DEFAULT_TRIAL_WALL_S  # a trial's wall-clock limit (its worker is killed past it)
+    trial_memory_mb: float | None = None  # address space a trial may add (RLIMIT_AS); None: no limit
 
 
 def git_revision() -> str | None:
@@ -65,15 +69,9 @@ def git_revision() -> str | None:
 
 def scenario_fingerprint(scenario: Scenario) -> str:
     """sha256 of the scenario file and of the map files it reads: what a resume must find unchanged."""
-    digest = hashlib.sha256(scenario.path.read_bytes())
-    if scenario.spec.world.map is not None:
-        map_yaml = scenario.path.parent / scenario.spec.world.map.yaml
-        digest.update(map_yaml.read_bytes())
-        for line in map_yaml.read_text().splitlines():
-            if line.strip().startswith("image:"):
-                image = map_yaml.parent / line.split(":", 1)[1].strip()
-                if image.is_file():
-                    digest.update(image.read_bytes())
+    digest = hashlib.sha256()
+    for path in scenario_files(scenario):
+        digest.update(path.read_bytes())
     return digest.hexdigest()
 
 
@@ -136,10 +134,14 @@ def execute(
     on_mapping: Callable[[float, float], None] | None = None,
     on_trial: Callable[[dict[str, Any]], None] | None = None,
     on_stage: Callable[[str, Any], None] | None = None,
+    pool: Executor | None = None,
+    on_jobs: Callable[[dict[str, int]], None] | None = None,
 ) -> RunDir:
     """Run (or resume) one run of one scenario with one seed; returns its folder.
 
     on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count).
+    pool: the executor to run the jobs on (several runs share one); None: one of ``options``'s,
+    closed at the end. on_jobs({done, failed, running, queued}): the executor's jobs, while they run.
     """
     say = on_stage or (lambda _stage, _value: None)
     if options.resume is not None:
@@ -191,90 +193,218 @@ def execute(
     if options.maps_from is not None and options.resume is None:
         reuse_maps(options.maps_from, run, systems, manifest_of_run=read_json(run.manifest_path))
 
-    # stage 1: mapping (skipped for systems whose map and report are already there)
-    todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
-    if todo:
-        say("mapping", todo)
-        run_mapping(
-            scenario,
-            [MappingSystem(entries[n], entries[n].config_model.model_validate(configs[n])) for n in todo],
+    files = ScenarioFiles.of(scenario)
+    opened = pool is None
+    pool = pool or open_executor(options.executor, options.workers, options.ray_address)
+    try:
+        # stage 1: mapping, a job per system (skipped for systems whose map and report are there)
+        todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
+        if todo:
+            say("mapping", todo)
+            groups = [todo[k :: pool.slots] for k in range(min(pool.slots, len(todo)))]
+            jobs = [
+                MappingJob(
+                    files,
+                    {name: configs[name] for name in group},
+                    seed,
+                    setting_override,
+                    sorted({m for name in group for m in modules_of(entries[name])}),
+                )
+                for group in groups
+            ]
+            map_systems(run, jobs, pool, on_mapping, on_jobs)
+        mapping = {name: read_json(run.mapping_path(name)) for name in systems}
+        navigate(
             run,
+            scenario,
+            files,
+            systems,
+            configs,
+            mapping,
             seed,
-            on_mapping,
+            trial_count,
+            setting_override,
+            protocol,
+            options,
+            pool,
+            on_trial,
+            say,
+            on_jobs,
         )
-    mapping = {name: read_json(run.mapping_path(name)) for name in systems}
+    finally:
+        if opened:
+            pool.close()
+    if run.failed_stages:
+        return run  # no summary: the run is unfinished, and --resume retries the stage
+    write_summary(run, systems, mapping)
+    return run
 
-    # stage 2: navigation (a system whose mapping failed fails its trials with that reason)
+
+def modules_of(entry: SystemEntry) -> list[str]:
+    """The module a worker imports to know a system (one registered outside the runner, e.g. by a test)."""
+    return [entry.cls.__module__]
+
+
+def _jobs_progress(pool: Executor, on_jobs: Callable[[dict[str, int]], None] | None) -> None:
+    if on_jobs is not None:
+        on_jobs({"done": pool.counts["done"], "failed": pool.counts["failed"], "running": pool.running, "queued": pool.queued})
+
+
+def map_systems(
+    run: RunDir,
+    jobs: list[MappingJob],
+    pool: Executor,
+    on_mapping: Callable[[float, float], None] | None,
+    on_jobs: Callable[[dict[str, int]], None] | None = None,
+) -> None:
+    """Stage 1: the mapping jobs; the driver installs each map (whole, atomically) and then its
+    report, so that a report on disk means a complete map beside it."""
+    driven = {k: 0.0 for k in range(len(jobs))}
+    mapped: set[str] = set()
+    for k, job in enumerate(jobs):
+        pool.submit(k, mapping_job, job)
+    for event in pool.events():
+        _jobs_progress(pool, on_jobs)
+        if event is None:
+            continue
+        k, message = event.key, event.message
+        if message is not None and message["kind"] == "progress":
+            driven[k] = message["travelled_m"]
+            if on_mapping is not None:
+                on_mapping(min(driven.values()), message["route_m"])  # the slowest drive
+        elif message is not None and message["kind"] == "mapped":
+            driven[k] = float("inf")  # this job's drive is over: the bar follows the others
+            if message["map"] is not None:
+                install_dir(message["map"], run.map_dir(message["system"]))
+            write_json(run.mapping_path(message["system"]), message["report"])
+            mapped.add(message["system"])
+        elif message is not None and message["kind"] == "route_error":
+            pool.cancel()
+            raise RouteError(message["detail"])
+        elif event.failure is not None:  # the job died or raised outside the systems' calls
+            detail = f"{event.failure.kind}: {event.failure.detail}"
+            for name in jobs[k].configs:
+                if name not in mapped:
+                    write_json(
+                        run.mapping_path(name), {"error": detail, "scans": None, "map_bytes": None, "map_disk_bytes": None}
+                    )
+
+
+def navigate(
+    run: RunDir,
+    scenario: Scenario,
+    scenario_files: ScenarioFiles,
+    systems: list[str],
+    configs: dict[str, Any],
+    mapping: dict[str, dict[str, Any]],
+    seed: int,
+    trial_count: int | None,
+    setting_override: str | None,
+    protocol: TrialProtocol,
+    options: RunOptions,
+    pool: Executor,
+    on_trial: Callable[[dict[str, Any]], None] | None,
+    say: Callable[[str, Any], None],
+    on_jobs: Callable[[dict[str, int]], None] | None = None,
+) -> None:
+    """Stage 2: a system whose mapping failed fails its trials with that reason; the others' trials
+    run in chunks, one job per chunk. A trial whose worker crashed or passed its wall-clock limit
+    is recorded so (``crashed`` / ``timeout``) and the rest of its chunk runs in a new job."""
     run.repair_trials()
     done = {(r["system"], r["trial"]) for r in run.read_trials()}
+    run.failed_stages = {}
+    run.warnings = 0
+
+    def record(message_or_record: dict[str, Any]) -> None:
+        is_message = "record" in message_or_record
+        rec = message_or_record["record"] if is_message else message_or_record
+        if is_message:
+            write_trial(run, scenario, message_or_record)
+        else:
+            run.append_trial(rec)
+        done.add((rec["system"], rec["trial"]))
+        run.warnings += rec.get("detail") is not None
+        if on_trial:
+            on_trial(rec)
+
+    def failed(system: str, index: int, reason: str, detail: str) -> dict[str, Any]:
+        return trial_record(system, index, scenario.trials[index], seed, success=False, reason=reason, detail=detail[:300])
+
     for name in systems:
         if "error" in mapping[name]:
             for i in range(trial_count or 0):
                 if (name, i) not in done:
-                    reason = f"error: mapping failed: {mapping[name]['error']}"[:300]
-                    run.append_trial(trial_record(name, i, scenario.trials[i], seed, success=False, reason=reason))
-                    done.add((name, i))
+                    record(failed(name, i, "error", f"mapping failed: {mapping[name]['error']}"))
     jobs = []
     for name in systems:
         pending = [i for i in range(trial_count or 0) if (name, i) not in done]
         if not pending:
             continue
-        chunks = [pending[k :: options.workers] for k in range(options.workers)] if options.workers > 1 else [pending]
+        chunks = [pending[k :: pool.slots] for k in range(pool.slots)]
+        archive = pack_dir(run.map_dir(name))
         for k, chunk in enumerate(c for c in chunks if c):
             jobs.append(
                 TrialJob(
-                    scenario=str(scenario.path.resolve()),
+                    scenario=scenario_files,
                     system=name,
                     config=configs[name],
-                    map_dir=str(run.map_dir(name).resolve()),
+                    map_archive=archive,
                     trials=chunk,
                     seed=seed,
-                    run_dir=str(run.root.resolve()),
                     measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
                     setting=setting_override,
                     protocol=protocol.as_json(),
                     anchors=mapping[name].get("anchors"),
+                    trial_wall_s=options.trial_wall_s,
+                    trial_memory_mb=options.trial_memory_mb,
+                    modules=modules_of(get_system(name)),
                 )
             )
-    run.incomplete = []
-    run.failed_stages = {}
-    if jobs:
-        say("navigation", sum(len(j.trials) for j in jobs))
-        tail = TrialsTail(run, skip=done)
-
-        def poll() -> None:
-            for record in tail.new_records():
-                if on_trial:
-                    on_trial(record)
-
-        jobs_run = run_jobs(run_trial_job, jobs, options.workers, options.executor, options.ray_address, on_poll=poll)
-        with closing(jobs_run):  # Ctrl-C in this loop also cancels the queued jobs and ends the workers
-            for job, _result, error in jobs_run:
-                poll()
-                if error is None:
-                    continue
-                if isinstance(error, MapLoadError):  # no trial ran: a failed stage, not failed trials
-                    run.failed_stages.setdefault(job.system, str(error))
-                    continue
-                recorded = {r["trial"] for r in run.read_trials() if r["system"] == job.system}
-                unrun = [i for i in job.trials if i not in recorded]
-                if isinstance(error, BrokenProcessPool):
-                    # the worker died (killed, out of memory) inside the first unrecorded trial: that
-                    # trial fails with the reason; the others stay unrun for --resume
-                    failed, left = unrun[:1], unrun[1:]
-                    reason = "error: worker process died"
-                else:
-                    # the system raised (a bug, not a lost process): the job's unrecorded trials fail
-                    failed, left = unrun, []
-                    reason = f"error: {type(error).__name__}: {error}".splitlines()[0][:300]
-                for index in failed:
-                    run.append_trial(trial_record(job.system, index, scenario.trials[index], seed, success=False, reason=reason))
-                run.incomplete.extend((job.system, i) for i in left)
-                poll()
-    if run.failed_stages:
-        return run  # no summary: the run is unfinished, and --resume retries the stage
-    write_summary(run, systems, mapping)
-    return run
+    if not jobs:
+        return
+    say("navigation", sum(len(j.trials) for j in jobs))
+    started: dict[int, int] = {}  # job number -> the trial it started last
+    numbers = itertools.count()
+    for job in jobs:
+        pool.submit((next(numbers), job), trial_job, job)
+    for event in pool.events():
+        _jobs_progress(pool, on_jobs)
+        if event is None:
+            continue
+        (number, job), message = event.key, event.message
+        if message is not None:
+            if message["kind"] == "started":
+                started[number] = message["trial"]
+            elif message["kind"] == "trial":
+                record(message)
+            elif message["kind"] == "memory":
+                write_json(run.root / "navigation" / f"{job.system}.json", message["report"])
+            elif message["kind"] == "map_load_error":  # no trial ran: a failed stage, not failed trials
+                run.failed_stages.setdefault(
+                    job.system, f"the map in {run.map_dir(job.system)} cannot be loaded: {message['detail']}"
+                )
+            continue
+        unrun = [i for i in job.trials if (job.system, i) not in done]
+        if event.failure is None or not unrun or job.system in run.failed_stages:
+            continue
+        kind, detail = event.failure.kind, event.failure.detail
+        if kind == "error":  # the job raised outside a trial (trials catch their own): its trials fail
+            for index in unrun:
+                record(failed(job.system, index, "error", detail))
+            continue
+        # crashed or timeout: the trial that was running fails; if the worker died before its first
+        # trial, that first trial fails (so that a job that cannot start does not come back for
+        # ever); between two trials, no trial is to blame. The rest runs in a fresh process.
+        current = started.get(number)
+        culprit = current if current in unrun else (unrun[0] if current is None else None)
+        if culprit is not None:
+            if kind == "crashed" and options.trial_memory_mb is not None:
+                detail += f" (under --trial-memory-mb {options.trial_memory_mb:g}: perhaps out of memory)"
+            record(failed(job.system, culprit, kind, detail))
+        rest = [i for i in unrun if i != culprit]
+        if rest:
+            retry = dataclasses.replace(job, trials=rest)
+            pool.submit((next(numbers), retry), trial_job, retry)
 
 
 class MapsFromError(ValueError):

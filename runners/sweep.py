@@ -41,7 +41,9 @@ class ScalingOptions:
     # its generator's default, 40 % of the way across it (a share of the length would not fit)
     min_distance_factor: float = 0.3
     setting: str | None = "precise"
-    workers: int = 1
+    workers: int | None = None  # jobs at once; None: the cores (local), the cluster's CPUs (ray)
+    executor: str = "local"  # runners.executors: local or ray
+    ray_address: str | None = None
     out: Path = Path("results/sweep_scaling")
     protocol: TrialProtocol = field(default_factory=TrialProtocol)
 
@@ -77,7 +79,7 @@ def run_scaling(
         )
         for length in options.lengths
     ]
-    return _run_each(jobs, options.systems, options.trials, options.workers, options.protocol, run_one)
+    return _run_each(jobs, options, run_one)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -92,7 +94,9 @@ class DriftOptions:
     levels: list[str] = field(default_factory=lambda: list(DEFAULT_LEVELS))
     systems: list[str] = field(default_factory=lambda: list(DEFAULT_SYSTEMS))
     trials: int = 5
-    workers: int = 1
+    workers: int | None = None
+    executor: str = "local"
+    ray_address: str | None = None
     out: Path = Path("results/sweep_drift")
     protocol: TrialProtocol = field(default_factory=TrialProtocol)
 
@@ -102,19 +106,16 @@ def run_drift(options: DriftOptions, run_one: Callable[[Scenario, RunOptions], R
     resumed); the same seed, route and trials, only the noise differs. Returns the run folders."""
     scenario = load_scenario(options.scenario)
     jobs = [(lambda: scenario, options.out / level, level) for level in options.levels]
-    return _run_each(jobs, options.systems, options.trials, options.workers, options.protocol, run_one)
+    return _run_each(jobs, options, run_one)
 
 
 def _run_each(
     jobs: list[tuple[Callable[[], Scenario], Path, str | None]],
-    systems: list[str],
-    trials: int,
-    workers: int,
-    protocol: TrialProtocol,
+    options: ScalingOptions | DriftOptions,
     run_one: Callable[[Scenario, RunOptions], RunDir] | None,
 ) -> list[Path]:
-    """Run each (scenario loader, folder, setting) in turn: a finished folder is kept, an
-    interrupted one resumed. Returns the run folders."""
+    """Run each (scenario loader, folder, setting) in turn, every run's jobs on the sweep's
+    executor: a finished folder is kept, an interrupted one resumed. Returns the run folders."""
     run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
     folders = []
     for load, folder, setting in jobs:
@@ -123,13 +124,15 @@ def _run_each(
             continue
         resume = folder if (folder / "manifest.json").is_file() else None
         run_options = RunOptions(
-            systems=list(systems),
-            trials=trials,
+            systems=list(options.systems),
+            trials=options.trials,
             out=None if resume else folder,
             resume=resume,
-            workers=workers,
+            workers=options.workers,
+            executor=options.executor,
+            ray_address=options.ray_address,
             setting=setting,
-            protocol=protocol,
+            protocol=options.protocol,
         )
         folders.append(run_one(load(), run_options).root)
     return folders

@@ -121,7 +121,7 @@ def test_cold_starts_localize_without_a_pose_and_reach_goals_in_other_locations(
     """Two trials in one worker: each starts from nothing, localizes right, reaches its goal."""
     run, report = tiny_graph
     entry = get_system("navtopo")
-    job = TrialJob(
+    job = TrialJob.packed(
         scenario=str(tiny.path),
         system="navtopo",
         config=entry.default_config().model_dump(mode="json"),
@@ -153,7 +153,7 @@ def test_the_papers_goal_form_names_the_location_the_goal_lies_in(tiny, tiny_gra
     entry = get_system("navtopo")
     from runners.protocol import TrialProtocol
 
-    job = TrialJob(
+    job = TrialJob.packed(
         scenario=str(tiny.path),
         system="navtopo",
         config=entry.default_config().model_dump(mode="json"),

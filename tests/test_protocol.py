@@ -140,7 +140,9 @@ def _reachable(root: Any, limit: int = 20000) -> list[Any]:
 
 
 def test_a_non_privileged_system_is_told_nothing_derived_from_ground_truth(tiny, mapped):
-    job = TrialJob(scenario=str(tiny.path), system="spy", config={}, map_dir=str(mapped.map_dir("spy")), trials=[0, 1], seed=1)
+    job = TrialJob.packed(
+        scenario=str(tiny.path), system="spy", config={}, map_dir=str(mapped.map_dir("spy")), trials=[0, 1], seed=1
+    )
     Spy.seen.clear()
     result = run_trial_job(job)
     assert [r["success"] for r in result["records"]] == [False, False]  # declared reached far from the goals
@@ -179,7 +181,7 @@ def test_the_mapping_stage_gives_systems_scans_and_odometry_only(tiny, mapped):
 
 def test_a_system_that_takes_an_initial_pose_gets_the_start_with_the_seeded_error(tiny, mapped):
     protocol = TrialProtocol()
-    job = TrialJob(
+    job = TrialJob.packed(
         scenario=str(tiny.path),
         system="spy_posed",
         config={},
@@ -216,8 +218,8 @@ def test_two_trials_in_one_worker_give_what_each_gives_alone(tiny, mapped):
     trial 1 alone in a fresh one (everything but timing identical)."""
     common = {"scenario": str(tiny.path), "system": "metric_grid", "map_dir": str(mapped.map_dir("metric_grid")), "seed": 1}
     config = get_system("metric_grid").default_config().model_dump(mode="json")
-    both = run_trial_job(TrialJob(config=config, trials=[0, 1], **common))["records"]
-    alone = run_trial_job(TrialJob(config=config, trials=[1], **common))["records"]
+    both = run_trial_job(TrialJob.packed(config=config, trials=[0, 1], **common))["records"]
+    alone = run_trial_job(TrialJob.packed(config=config, trials=[1], **common))["records"]
     assert both[1]["success"] and alone[0]["success"]
     assert _without_timing(both[1]) == _without_timing(alone[0])
 

@@ -340,19 +340,22 @@ def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
 
     (tmp_path / "slow_job.py").write_text(
         "import time\nfrom pathlib import Path\n\n\n"
-        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n"
+        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n    yield {}\n"
     )
     driver = (
         "import sys\n"
         f"sys.path.insert(0, {str(tmp_path)!r})\n"
         "import slow_job\n"
-        "from runners.executors import run_jobs\n"
+        "from runners.executors import LocalExecutor\n"
         f"markers = [{str(tmp_path / 'a')!r}, {str(tmp_path / 'b')!r}]\n"
-        "try:\n"
-        "    for _ in run_jobs(slow_job.job, markers, workers=1):\n"
-        "        pass\n"
-        "except KeyboardInterrupt:\n"
-        "    sys.exit(130)\n"
+        "with LocalExecutor(1) as pool:\n"
+        "    for marker in markers:\n"
+        "        pool.submit(marker, slow_job.job, marker)\n"
+        "    try:\n"
+        "        for _ in pool.events():\n"
+        "            pass\n"
+        "    except KeyboardInterrupt:\n"
+        "        sys.exit(130)\n"
     )
     process = subprocess.Popen([sys.executable, "-c", driver], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     try:

@@ -129,35 +129,6 @@ def test_config_prints_the_resolved_oracle_config():
     assert "oracle:" in result.stdout and "goal_tolerance: 0.35" in result.stdout
 
 
-def test_a_dead_worker_fails_the_trial_it_was_running_and_leaves_the_rest_for_resume(tmp_path, monkeypatch):
-    """The main process sees a BrokenProcessPool after the worker wrote trial 0: trial 1 (running
-    when it died) fails with that reason, trial 2 is left for --resume, nothing is duplicated."""
-    from concurrent.futures.process import BrokenProcessPool
-
-    import runners.run as run_module
-    from runners.run import RunOptions, execute
-    from scenarios import load_scenario
-
-    scenario = load_scenario("tiny")
-    scenario.route = scenario.route[:3]  # a few metres of mapping are enough here
-    out = tmp_path / "run"
-
-    def dying_worker(fn, jobs, workers, executor="local", address=None, on_poll=None):
-        for job in jobs:
-            result = fn(type(job)(**{**vars(job), "trials": job.trials[:1]}))  # trial 0 finishes ...
-            assert result["records"][0]["trial"] == 0
-            yield job, None, BrokenProcessPool("killed")  # ... then the process dies
-
-    monkeypatch.setattr(run_module, "run_jobs", dying_worker)
-    run = execute(scenario, RunOptions(systems=["oracle"], out=out, trials=3))
-    records = RunDir(out).read_trials()
-    assert [(r["trial"], r["success"]) for r in records] == [(0, True), (1, False)]
-    assert records[1]["reason"] == "error: worker process died"
-    assert run.incomplete == [("oracle", 2)]
-    lines = (out / "trials.jsonl").read_text().splitlines()
-    assert len(lines) == 2
-
-
 def test_maps_from_an_earlier_run_skips_mapping_and_refuses_another_seed(tmp_path):
     first = tmp_path / "first"
     result = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--trials", "0", "--out", str(first)])

@@ -1,0 +1,259 @@
+"""Scale-out and fault tolerance: crash isolation, determinism across executors, resume after a
+killed driver (issue 13). The runs use `tiny`, or a copy of it with a short mapping route."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import faulty_system  # noqa: F401 - registers the "faulty" system in this process
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from navtopo import geometry as se2
+from runners.cli import app
+from runners.results import RunDir
+from scenarios import load_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+TIMING = {"compute_s", "planning_ms", "planning_ms_samples", "first_plan_ms", "memory"}
+HAS_RAY = __import__("importlib.util").util.find_spec("ray") is not None
+
+
+def short_tiny(folder: Path, extra_trials: int = 0) -> Path:
+    """`tiny` with a 3 m mapping route (enough for the oracle, which maps nothing) and, appended,
+    copies of its first trial (distinct goals a metre apart, so a test system can tell them apart)."""
+    spec = yaml.safe_load((ROOT / "scenarios" / "bundled" / "tiny.yaml").read_text())
+    spec["mapping_route"] = {"waypoints": [[1.0, 0.0], [4.0, 0.0]]}
+    for k in range(extra_trials):
+        spec["trials"].append({"start": [1.0, 0.0, 0], "goal": [11.0, -0.5 + 0.5 * k]})
+    path = folder / "short_tiny.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+def goal_in_map(scenario, index: int) -> list[float]:
+    trial = scenario.trials[index]
+    return [float(v) for v in se2.transform_points(se2.inverse(scenario.route_start), trial.goal[None, :])[0]]
+
+
+def records_of(run: Path) -> dict[tuple[str, int], dict]:
+    records = [json.loads(line) for line in (run / "trials.jsonl").read_text().splitlines() if line.strip()]
+    keys = [(r["system"], r["trial"]) for r in records]
+    assert len(keys) == len(set(keys)), f"a trial recorded twice in {run}"
+    return {(r["system"], r["trial"]): r for r in records}
+
+
+def without_timing(record: dict) -> dict:
+    return {k: v for k, v in record.items() if k not in TIMING}
+
+
+# ---------------------------------------------------------------------------------------------
+# crash isolation
+
+
+def test_trials_that_raise_crash_hang_or_hog_fail_alone_and_the_run_finishes(tmp_path):
+    check_faulty_trials(tmp_path)
+
+
+def check_faulty_trials(tmp_path: Path, *flags: str) -> None:
+    """Trial 0 raises, 1 aborts its worker, 2 hangs past --trial-timeout-s, 3 allocates past
+    --trial-memory-mb; 4 behaves. Each is recorded with its reason and a one-line detail, the
+    well-behaved trial succeeds, the run exits 0 with a warning count and a summary."""
+    path = short_tiny(tmp_path, extra_trials=2)
+    scenario = load_scenario(path)
+    goals = [goal_in_map(scenario, i) for i in range(5)]
+    config = tmp_path / "faulty.yaml"
+    config.write_text(
+        yaml.safe_dump({"faulty": {"raise_at": [goals[0]], "abort_at": [goals[1]], "hang_at": [goals[2]], "hog_at": [goals[3]]}})
+    )
+    out = tmp_path / "run"
+    args = ["run", str(path), "--systems", "faulty", "--config", str(config), "--workers", "2", "--out", str(out)]
+    result = CliRunner().invoke(app, [*args, "--trial-timeout-s", "20", "--trial-memory-mb", "400", *flags])
+    assert result.exit_code == 0, result.output
+    assert "warning: 4 trial(s) failed in their worker" in result.output
+    records = records_of(out)
+    reasons = [records[("faulty", i)]["reason"] for i in range(5)]
+    assert reasons == ["error", "crashed", "timeout", "out_of_memory", ""], reasons
+    assert records[("faulty", 4)]["success"]
+    details = [records[("faulty", i)]["detail"] for i in range(4)]
+    assert "RuntimeError: faulty: raised on purpose" in details[0]
+    assert "SIGABRT" in details[1] or "died" in details[1]  # Ray names no signal
+    assert "wall-clock limit of 20 s" in details[2]
+    assert "MemoryError" in details[3]
+    assert all("\n" not in d and len(d) <= 300 for d in details)
+    assert records[("faulty", 4)]["detail"] is None
+    summary = json.loads((out / "summary.json").read_text())["faulty"]
+    assert summary["failure_reasons"] == {"crashed": 1, "error": 1, "out_of_memory": 1, "timeout": 1}
+    assert (out / "trajectories" / "faulty" / "trial-4.tum").is_file()
+
+
+def test_a_mapping_job_that_kills_its_worker_fails_that_system_only(tmp_path):
+    from runners.run import RunOptions, execute
+
+    out = tmp_path / "run"
+    options = RunOptions(
+        systems=["faulty", "oracle"], out=out, workers=2, config_overrides={"faulty": {"abort_while_mapping": True}}
+    )
+    run = execute(load_scenario(short_tiny(tmp_path)), options)
+    report = json.loads((out / "mapping" / "faulty.json").read_text())
+    assert report["error"].startswith("crashed: worker process killed by SIGABRT")
+    assert not (out / "maps" / "faulty").exists() and (out / "maps" / "oracle" / "oracle.json").is_file()
+    records = records_of(out)
+    assert all(
+        r["reason"] == "error" and r["detail"].startswith("mapping failed: crashed")
+        for k, r in records.items()
+        if k[0] == "faulty"
+    )
+    assert all(r["success"] for k, r in records.items() if k[0] == "oracle") and len(records) == 6
+    assert run.warnings == 3 and (out / "summary.json").is_file()
+
+
+# ---------------------------------------------------------------------------------------------
+# determinism
+
+
+def _run_tiny(out: Path, *flags: str) -> Path:
+    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle,metric_grid", "--out", str(out), *flags]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return out
+
+
+def _assert_same_outcomes(a: Path, b: Path) -> None:
+    first, second = records_of(a), records_of(b)
+    assert sorted(first) == sorted(second)
+    for key in first:
+        assert without_timing(first[key]) == without_timing(second[key]), key
+        system, index = key
+        assert (a / "trajectories" / system / f"trial-{index}.tum").read_bytes() == (
+            b / "trajectories" / system / f"trial-{index}.tum"
+        ).read_bytes(), key
+    for report in (a / "mapping").glob("*.json"):
+        mine, theirs = json.loads(report.read_text()), json.loads((b / "mapping" / report.name).read_text())
+        mine.pop("ms_per_scan"), theirs.pop("ms_per_scan")
+        assert mine == theirs, report.name
+
+
+def test_one_worker_two_workers_and_ray_give_identical_trials_maps_and_trajectories(tmp_path):
+    """`tiny` with the oracle and the metric baseline: --workers 1 and 2 (other chunks, other
+    processes) and a private Ray instance give the same outcomes. Without Ray the test compares
+    the local runs, then skips with the reason."""
+    one = _run_tiny(tmp_path / "w1", "--workers", "1")
+    _assert_same_outcomes(one, _run_tiny(tmp_path / "w2", "--workers", "2"))
+    if not HAS_RAY:
+        pytest.skip("Ray is not installed (pip install -e '.[ray]'): compared --workers 1 and 2 only")
+    _assert_same_outcomes(one, _run_tiny(tmp_path / "ray", "--executor", "ray", "--workers", "2"))
+
+
+@pytest.mark.ray
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_RAY, reason="Ray is not installed (pip install -e '.[ray]')")
+def test_on_ray_trials_that_raise_crash_hang_or_hog_fail_alone_too(tmp_path):
+    check_faulty_trials(tmp_path, "--executor", "ray")
+
+
+# ---------------------------------------------------------------------------------------------
+# resume after the driver was killed
+
+
+def _kill_driver_mid_run(out: Path, *flags: str) -> list[dict]:
+    """Start a run of `tiny` (the oracle, 2 workers), SIGKILL the driver alone once a trial is
+    recorded; returns the records it left."""
+    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--out", str(out), *flags]
+    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    trials = out / "trials.jsonl"
+    deadline = time.monotonic() + 400
+    while time.monotonic() < deadline and process.poll() is None:
+        if trials.is_file() and trials.read_text().count("\n") >= 1:
+            break
+        time.sleep(0.1)
+    if process.poll() is None:
+        os.kill(process.pid, signal.SIGKILL)  # the driver only: its workers must notice and end
+    process.wait()
+    return list(RunDir(out).read_trials())
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [
+        pytest.param(("--workers", "2"), id="local"),
+        pytest.param(
+            ("--workers", "2", "--executor", "ray"),
+            id="ray",
+            marks=[pytest.mark.ray, pytest.mark.slow, pytest.mark.skipif(not HAS_RAY, reason="Ray is not installed")],
+        ),
+    ],
+)
+def test_a_killed_driver_resumes_with_no_trial_lost_or_twice_and_no_mapping_redone(tmp_path, flags):
+    out = tmp_path / "run"
+    before = _kill_driver_mid_run(out, *flags)
+    assert len(before) >= 1
+    mapped = (out / "mapping" / "oracle.json").stat().st_mtime_ns
+    result = CliRunner().invoke(app, ["run", "--resume", str(out), *flags])
+    assert result.exit_code == 0, result.output
+    assert "mapping (m)" not in result.output
+    assert (out / "mapping" / "oracle.json").stat().st_mtime_ns == mapped
+    records = records_of(out)
+    assert sorted(records) == [("oracle", 0), ("oracle", 1), ("oracle", 2)]
+    for record in before:  # what was recorded before the kill stays as it was
+        assert records[(record["system"], record["trial"])] == record
+    assert all(r["success"] for r in records.values())
+
+
+def test_ray_without_ray_installed_is_one_line_and_exit_2(tmp_path):
+    """Ray hidden from the interpreter: `--executor ray` refuses before any file is written."""
+    code = (
+        "import sys\n"
+        "sys.modules['ray'] = None\n"  # import ray -> ImportError, find_spec -> ValueError/None
+        "from runners.cli import main\n"
+        f"sys.argv = ['navtopo-bench', 'run', 'tiny', '--executor', 'ray', '--results', {str(tmp_path / 'r')!r}]\n"
+        "sys.exit(main())\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: --executor ray: Ray is not installed"), done.stderr
+    assert not (tmp_path / "r").exists()
+
+
+def test_jobs_carry_content_not_paths(tmp_path):
+    """A navigation job holds the scenario's files and the map's bytes: it runs after both are gone."""
+    from runners.navigation import TrialJob, run_trial_job
+    from runners.run import RunOptions, execute
+
+    path = short_tiny(tmp_path)
+    out = tmp_path / "run"
+    execute(load_scenario(path), RunOptions(systems=["oracle"], trials=0, out=out, workers=1))
+    job = TrialJob.packed(load_scenario(path), out / "maps" / "oracle", system="oracle", config={}, trials=[0], seed=1)
+    assert not any(isinstance(v, (str, Path)) and "/" in str(v) for v in vars(job).values())
+    path.unlink()
+    (out / "maps" / "oracle" / "oracle.json").unlink()
+    record = run_trial_job(job)["records"][0]
+    assert record["success"] and np.isfinite(record["travelled_m"])
+
+
+@pytest.mark.ray
+@pytest.mark.skipif(not HAS_RAY, reason="Ray is not installed (pip install -e '.[ray]')")
+def test_a_ray_address_where_nothing_listens_is_one_line_and_exit_2(tmp_path):
+    results = tmp_path / "results"
+    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--results", str(results)]
+    done = subprocess.run(
+        [*command, "--executor", "ray", "--ray-address", "127.0.0.1:1"], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 2, done.stderr
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "--ray-address 127.0.0.1:1: cannot join the Ray cluster" in errors[0], done.stderr
+    assert "Traceback" not in done.stderr and not results.exists()
+
+
+def test_ray_address_without_the_ray_executor_is_refused(tmp_path):
+    result = CliRunner().invoke(app, ["run", "tiny", "--ray-address", "auto", "--results", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "--ray-address: only with --executor ray" in result.output
