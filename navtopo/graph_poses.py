@@ -24,7 +24,11 @@ from navtopo.geometry import between, wrap_angle
 from navtopo.graph import TopologicalGraph
 
 EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm median, up to 0.2 m)
-EDGE_SIGMA_YAW = np.radians(1.0)  # (edge rotation errors ~0.2° median, up to 1.5°)
+# (edge rotation errors ~0.3° median, up to 2°). It is also subtracted from the hints' measured
+# disagreement with the edges: at 1° it explained away the whole heading noise of 0.5°/m odometry
+# and the relaxation trusted drifting hints (map poses 1.3 m off on a generated noisy ring, 0.5°:
+# 1.1 m; no change with precise odometry; benchmarks: BENCHMARKS.md, "Rooms as locations")
+EDGE_SIGMA_YAW = np.radians(0.5)
 HINT_FLOOR_XY = 0.001  # m: no relative hint is trusted more than this ...
 HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
 ANCHOR_SIGMA = 1e-6
