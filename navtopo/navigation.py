@@ -59,7 +59,7 @@ class StartupConfig(BaseModel):
 
     top_k: int = Field(10, ge=1, description="place-recognition candidates verified at each look")
     confirm_looks: int = Field(3, ge=1, description="looks that must verify a hypothesis before it is committed")
-    confirm_distance: float = Field(1.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
+    confirm_distance: float = Field(2.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
     confirm_places: int = Field(
         2, ge=1, description="locations the hypothesis must have been verified in before it is committed ..."
     )
