@@ -128,6 +128,13 @@ def run_pairs(grids, poses, pairs, guess_mode: str, config: MatchingConfig, rng)
                 "accepted": bool(result.accepted),
                 "translation_error_m": float(np.hypot(error[0], error[1])),
                 "rotation_error_deg": float(np.degrees(abs(wrap_angle(error[2])))),
+                # the matcher's own estimate of its error (one sigma), to check against the errors
+                "rotation_sigma_deg": float(np.degrees(np.sqrt(result.covariance[2, 2])))
+                if result.covariance is not None
+                else None,
+                "translation_sigma_m": float(np.sqrt(result.covariance[0, 0] + result.covariance[1, 1]))
+                if result.covariance is not None
+                else None,
                 "score": result.score,
                 "wall_agreement": result.wall_agreement,
                 "overlap": result.overlap,

@@ -24,6 +24,8 @@ import numpy as np
 import yaml
 from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
 
+from navtopo import geometry as se2
+from navtopo.graph_poses import relaxed_poses
 from navtopo.system import NavTopo, NavTopoConfig
 from runners.mapping import revisited_late
 from runners.metrics import each_edge_error
@@ -54,6 +56,9 @@ def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any
     stamps = stats["vertex_stamps"]
     late = sum(1 for s in stamps if travelled[s] > half)
     worst = max(edges, default=(0.0, 0.0, 0.0, 0.0))
+    # the locations' map-frame positions as a map-frame goal is converted with them
+    origin = true[stamps[0]]
+    placed = np.hypot(*(relaxed_poses(system.graph)[:, :2] - [se2.between(origin, true[s])[:2] for s in stamps]).T)
     return {
         "vertices": stats["vertices"],
         "edges": stats["edges"],
@@ -62,6 +67,8 @@ def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any
         "edge_deg_max": round(max((e[1] for e in edges), default=0.0), 3),
         "edges_over_0.3m_or_3deg": sum(1 for e in edges if e[0] > 0.3 or e[1] > 3.0),
         "worst_edge_at": [np.round(true[worst[2]][:2], 2).tolist(), np.round(true[worst[3]][:2], 2).tolist()] if edges else None,
+        "map_pose_m_median": round(float(np.median(placed)), 3),
+        "map_pose_m_max": round(float(np.max(placed)), 3),
         "second_half": late,
         "second_half_share": round(late / max(len(stamps), 1), 4),
         "second_half_revisited": revisited_late(stamps, true, travelled, half),

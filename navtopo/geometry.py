@@ -102,3 +102,28 @@ def distance_to_polyline(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.f
     along = np.clip((rel * vectors[None]).sum(axis=2) / lengths2, 0.0, 1.0)
     closest = starts[None] + along[..., None] * vectors[None]
     return np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)).min(axis=1)
+
+
+def _compose_jacobians(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
+    """d(a ⊕ b)/da and d(a ⊕ b)/db at (a, b), each (3, 3)."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    ja = np.array([[1.0, 0.0, -s * b[0] - c * b[1]], [0.0, 1.0, c * b[0] - s * b[1]], [0.0, 0.0, 1.0]])
+    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return ja, jb
+
+
+def inverse_with_covariance(a: ArrayLike, cov: ArrayLike) -> tuple[Pose2, NDArray[np.float64]]:
+    """``a⁻¹`` and its covariance (3, 3), to first order."""
+    a = np.asarray(a, dtype=np.float64)
+    c, s = np.cos(a[2]), np.sin(a[2])
+    # a⁻¹ = (-(c x + s y), s x - c y, -yaw)
+    j = np.array([[-c, -s, s * a[0] - c * a[1]], [s, -c, c * a[0] + s * a[1]], [0.0, 0.0, -1.0]])
+    return inverse(a), j @ np.asarray(cov, dtype=np.float64) @ j.T
+
+
+def compose_with_covariance(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike) -> tuple[Pose2, NDArray[np.float64]]:
+    """``a ⊕ b`` of independent uncertain poses and its covariance (3, 3), to first order."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    ja, jb = _compose_jacobians(a, b)
+    return compose(a, b), ja @ np.asarray(cov_a, dtype=np.float64) @ ja.T + jb @ np.asarray(cov_b, dtype=np.float64) @ jb.T

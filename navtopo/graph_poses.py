@@ -32,6 +32,8 @@ EDGE_SIGMA_YAW = np.radians(0.5)
 HINT_FLOOR_XY = 0.001  # m: no relative hint is trusted more than this ...
 HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
 ANCHOR_SIGMA = 1e-6
+CHI2_MEDIAN_1 = 0.4549  # median of chi-square with 1 degree of freedom
+CHI2_MEDIAN_2 = 1.3863  # ... with 2 (2 ln 2)
 
 
 def _residuals(poses: NDArray, u: NDArray, v: NDArray, measured: NDArray) -> tuple[NDArray, NDArray, NDArray]:
@@ -72,8 +74,10 @@ def _hint_noise(graph: TopologicalGraph, travel: NDArray) -> tuple[float, float]
     if not xy:
         return 0.0, 0.0  # no edge: the hints alone place the locations
     per_metre = float(np.median(metres))
-    k_xy = np.sqrt(max(float(np.median(xy)) - 2 * EDGE_SIGMA_XY**2, 0.0) / per_metre)
-    k_yaw = np.sqrt(max(float(np.median(yaw)) - EDGE_SIGMA_YAW**2, 0.0) / per_metre)
+    # medians, robust to the odd wrong edge, turned into variances: the median of a squared normal
+    # is 0.455 sigma^2 (chi-square, 1 degree of freedom), of a squared 2D distance 1.386 sigma^2 a side
+    k_xy = np.sqrt(max(float(np.median(xy)) / CHI2_MEDIAN_2 - EDGE_SIGMA_XY**2, 0.0) / per_metre)
+    k_yaw = np.sqrt(max(float(np.median(yaw)) / CHI2_MEDIAN_1 - EDGE_SIGMA_YAW**2, 0.0) / per_metre)
     return float(k_xy), float(k_yaw)
 
 
@@ -89,7 +93,11 @@ def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.f
     k_xy, k_yaw = _hint_noise(graph, travel)
     edges = graph.edges()
     chain = np.arange(1, n)
-    root = np.sqrt(np.maximum(np.abs(travel[chain] - travel[chain - 1]), 0.1))
+    metres = np.maximum(np.abs(travel[chain] - travel[chain - 1]), 0.1)
+    root = np.sqrt(metres)
+    # a heading random walk moves the position too: sideways by k_yaw * sqrt(L^3 / 3) over L metres
+    # driven (straight); over tens of metres that, not the translation noise, is the hint's error
+    lateral = np.sqrt((k_xy * root) ** 2 + k_yaw**2 * metres**3 / 3.0)
     u = np.concatenate([[e[0] for e in edges], chain - 1]).astype(np.int64)
     v = np.concatenate([[e[1] for e in edges], chain]).astype(np.int64)
     measured = np.vstack([np.array([e[2] for e in edges]).reshape(-1, 3), [between(hints[i - 1], hints[i]) for i in chain]])
@@ -98,8 +106,8 @@ def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.f
             np.tile([EDGE_SIGMA_XY, EDGE_SIGMA_XY, EDGE_SIGMA_YAW], (len(edges), 1)),
             np.stack(
                 [
-                    np.maximum(HINT_FLOOR_XY, k_xy * root),
-                    np.maximum(HINT_FLOOR_XY, k_xy * root),
+                    np.maximum(HINT_FLOOR_XY, lateral),
+                    np.maximum(HINT_FLOOR_XY, lateral),
                     np.maximum(HINT_FLOOR_YAW, k_yaw * root),
                 ],
                 axis=1,

@@ -134,8 +134,12 @@ class Localizer:
         is still the current one; then each candidate's hint gives a guess for the matcher and
         candidates farther than ``hint_gate[v]`` (m) from the hint are skipped, and the
         ``near_k`` vertices nearest by hint within their gates are verified too (odometry finds a
-        place that place recognition ranks low). top_k: how many descriptor neighbours to verify
-        (default: the config's).
+        place that place recognition ranks low). Where a gate is wider than the matcher's window
+        around a guess (``guess_translation_tolerance``: drift over a long drive, a loop coming
+        round), a candidate the hinted match refuses is matched again without the guess and kept
+        if it lies within the gate (on a generated ring with noisy odometry, places mapped twice
+        fell from 20 to 4 of the route's late locations: BENCHMARKS.md, "Edge measurements").
+        top_k: how many descriptor neighbours to verify (default: the config's).
         """
         ids, _ = self.graph.nearest(descriptor, top_k or self.config.top_k)
         candidates = [int(v) for v in ids]
@@ -158,6 +162,12 @@ class Localizer:
             # a hinted match may move the robot away from its hint by what drift explains, no more
             # recognising a place (not tracking one): the verdict's thresholds without a guess
             located = self.verify(query, vertex, guess, gate, strict=True)
+            if located is None and guess is not None and gate is not None and gate > self.matching.guess_translation_tolerance:
+                # the hint may be off by more than the features' window around a guess (drift over
+                # a long drive, a loop coming round): search every pose, and keep the gate
+                unguided = self.verify(query, vertex, None, strict=True)
+                if unguided is not None and float(np.hypot(*(unguided.pose[:2] - guess[:2]))) <= gate:
+                    located = unguided
             if located is not None:
                 found.append(located)
         found.sort(key=lambda loc: -loc.result.score)

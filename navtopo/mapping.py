@@ -9,12 +9,18 @@ it, ``pose_in_current``, integrated from odometry. Then, in the paper's order:
    matching against the location agrees) → keep it; scan matching against the location corrects
    ``pose_in_current`` when it agrees with odometry;
 2. else move along an edge: the neighbours nearer than the current centre, each verified by scan
-   matching seeded with the pose the edge predicts; while mapping, the same scan matched against
-   both ends measures the edge again, and the edge keeps the mean of its measurements;
+   matching seeded with the pose the edge predicts;
 3. else a verified localization result (top-k descriptors, scan matching seeded by the
    vertices' odometry hints and gated by the drift odometry can explain); an edge to it is added
    if it passes the checks below — a loop closure when the graph's way round is much longer;
 4. else add a new location at the robot's pose, with an edge from the current one.
+
+Edges are measured again and again while mapping: each time one scan matches both ends (moving
+along the edge, and inside a location with a neighbour's centre about as near as its own), and
+the edge keeps the information-weighted mean of its measurements, each weighted by the
+covariance the matcher reports (a match sharing few walls fixes the rotation poorly: a degree off
+where the usual error is a tenth, BENCHMARKS.md "Edge measurements"). The first measurement is the
+pose in the location the new one was made from, as odometry carried it since its last match.
 
 Every new edge is checked first (the reference code did not): its length must be at most
 ``2 * max_edge_length``, and where the graph already joins its ends by a path that is not much
@@ -32,10 +38,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.geometry import between, compose, inverse, wrap_angle
+from navtopo.geometry import between, compose, compose_with_covariance, inverse_with_covariance, wrap_angle
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import UNKNOWN, CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
-from navtopo.localization import LocalizationConfig, Localizer, VertexGrids
+from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
 
 
@@ -74,8 +80,41 @@ class MappingConfig(BaseModel):
         "can localize and a goal there can be planned to",
     )
     edge_measurements: int = Field(
-        20, ge=1, description="passes along an edge averaged into it at most (later ones weigh 1/this)"
+        20, ge=1, description="measurements of an edge fused into it at most (information-weighted mean)"
     )
+    # a prior on odometry's quality (not the benchmark's setting): how the pose's covariance grows
+    # between matches, so that the pose a new location's edge starts from weighs what it is worth
+    odometry_sigma_per_metre: float = Field(0.02, ge=0, description="odometry translation noise, m per m travelled")
+    odometry_yaw_sigma_deg: float = Field(1.0, ge=0, description="odometry heading noise, degrees per square-root metre")
+
+
+@dataclass
+class EdgeEstimate:
+    """An edge's relative pose T_uv (u < v) as the information-weighted mean of its measurements."""
+
+    pose: NDArray[np.float64]
+    information: NDArray[np.float64]
+    count: int = 1
+
+    @classmethod
+    def first(cls, pose: NDArray[np.float64], covariance: NDArray[np.float64]) -> EdgeEstimate:
+        return cls(np.asarray(pose, dtype=np.float64).copy(), _information(covariance))
+
+    def fuse(self, measured: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
+        weight = _information(covariance)
+        total = self.information + weight
+        difference = np.asarray(measured, dtype=np.float64) - self.pose
+        difference[2] = wrap_angle(difference[2])
+        self.pose = self.pose + np.linalg.solve(total, weight @ difference)
+        self.pose[2] = wrap_angle(self.pose[2])
+        self.information = total
+        self.count += 1
+
+
+def _information(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
+    # a floor of a millimetre and a hundredth of a degree: no measurement is exact
+    floor = np.diag([1e-6, 1e-6, np.radians(0.01) ** 2])
+    return np.linalg.inv(np.asarray(covariance, dtype=np.float64) + floor)
 
 
 @dataclass
@@ -91,7 +130,7 @@ class MappingCounters:
     rejected_edges: int = 0
     matches: int = 0
     odometry_only: int = 0  # navigating: no location verified, the pose kept by odometry in the last one
-    edge_refinements: int = 0  # mapping: passes along an edge that measured it again
+    edge_refinements: int = 0  # mapping: measurements of an existing edge fused into it
     stayed: int = 0  # mapping: outside the location's reach, yet its scan still matched
     reasons: dict[str, int] = field(default_factory=dict)
 
@@ -121,13 +160,15 @@ class GraphMaintainer:
         self.last_verified = False  # the last update verified the pose by scan matching
         self.current: int | None = None
         self.pose_in_current = np.zeros(3)
+        self.pose_covariance = np.zeros((3, 3))  # of pose_in_current
         self.counters = MappingCounters()
         self._last_odom: NDArray[np.float64] | None = None
         self._odom_at_update: NDArray[np.float64] | None = None
         self._odometer = 0.0  # metres of odometry travelled
         self._odometer_verified = 0.0  # the odometer when the pose was last verified by scan matching
         self._odometer_at_vertex: dict[int, float] = {}
-        self._edge_measurements: dict[tuple[int, int], int] = {}
+        self._edges: dict[tuple[int, int], EdgeEstimate] = {}
+        self._odometer_at_measure: dict[tuple[int, int], float] = {}
 
     # -- odometry ----------------------------------------------------------------------------------
 
@@ -135,7 +176,11 @@ class GraphMaintainer:
         if self._last_odom is not None:
             delta = between(self._last_odom, odom)
             self.pose_in_current = compose(self.pose_in_current, delta)
-            self._odometer += float(np.hypot(delta[0], delta[1]))
+            step = float(np.hypot(delta[0], delta[1]))
+            self._odometer += step
+            sigma_xy = self.config.odometry_sigma_per_metre * step
+            sigma_yaw2 = np.radians(self.config.odometry_yaw_sigma_deg) ** 2 * step
+            self.pose_covariance = self.pose_covariance + np.diag([sigma_xy**2, sigma_xy**2, sigma_yaw2])
         self._last_odom = np.asarray(odom, dtype=np.float64).copy()
 
     def due(self, odom: NDArray[np.float64]) -> bool:
@@ -199,6 +244,8 @@ class GraphMaintainer:
             self.counters.inside += 1
             if inside == "seen":
                 self._correct(query)
+            if self.mapping and self.last_verified:
+                self._measure_neighbour(query)
             return "inside"
         if self.current is not None and self._move_along_edge(query):
             self.counters.moved_along_edge += 1
@@ -229,7 +276,7 @@ class GraphMaintainer:
         located = self.localizer.verify(query, next_vertex, between(pose_uv, here), self.config.max_neighbour_jump)
         if located is None:
             return False
-        self._switch(next_vertex, located.pose)
+        self._switch(next_vertex, located.pose, self._located_covariance(located))
         self.last_verified = True
         return True
 
@@ -286,6 +333,7 @@ class GraphMaintainer:
             return False
         self._odometer_verified = self._odometer
         self.pose_in_current = located.pose
+        self.pose_covariance = self._located_covariance(located)
         self.counters.corrections += 1
         self.last_verified = True
         return True
@@ -307,34 +355,57 @@ class GraphMaintainer:
                 continue
             if located is not None:
                 if self.mapping:
-                    self._refine_edge(query, self.current, vertex, located.pose)
-                self._switch(vertex, located.pose)
+                    self._refine_edge(query, self.current, vertex, located)
+                self._switch(vertex, located.pose, self._located_covariance(located))
                 self.last_verified = True
                 return True
         return False
 
-    def _refine_edge(self, query: PreparedGrid, u: int, v: int, pose_in_v: NDArray[np.float64]) -> None:
-        """Each pass along an edge while mapping measures it again: the scan matched against both
-        ends at once gives ``T_uv`` with no odometry in between; the edge keeps the running mean of
-        the measurements that agree with it (the first was made with the location)."""
+    def _refine_edge(self, query: PreparedGrid, u: int, v: int, at_v: Localized) -> None:
+        """Moving along an edge while mapping: the scan matched against both ends at once measures
+        ``T_uv`` with no odometry in between."""
         at_u = self.localizer.verify(query, u, self.pose_in_current, self.config.max_correction)
         self.counters.matches += 1
         if at_u is None:
             return
-        measured = compose(at_u.pose, inverse(pose_in_v))
-        edge = self.graph.edge(u, v)
-        step = between(edge, measured)
-        if float(np.hypot(step[0], step[1])) > self.config.edge_tolerance or abs(step[2]) > np.radians(5.0):
+        measured, covariance = compose_with_covariance(
+            at_u.pose, self._located_covariance(at_u), *inverse_with_covariance(at_v.pose, self._located_covariance(at_v))
+        )
+        self._measure_edge(u, v, measured, covariance)
+
+    def _measure_neighbour(self, query: PreparedGrid) -> None:
+        """Mapping, inside a location whose neighbour's centre is about as near as its own (within a
+        metre): the scan, just matched against the location, matched against the neighbour too
+        measures their edge — both matches share many walls here, unlike at a location's rim where
+        the robot moves along the edge. Once a metre of travel per edge, while it takes measurements."""
+        assert self.current is not None
+        here = self.pose_in_current
+        own = float(np.hypot(here[0], here[1]))
+        nearest = None
+        for vertex, pose_uv in self.graph.neighbours(self.current):
+            distance = float(np.hypot(*(pose_uv[:2] - here[:2])))
+            if distance <= min(own + 1.0, self.config.max_edge_length) and (nearest is None or distance < nearest[0]):
+                nearest = (distance, vertex, pose_uv)
+        if nearest is None:
             return
-        key = (min(u, v), max(u, v))
-        count = self._edge_measurements.get(key, 1)
-        weight = 1.0 / (count + 1)
-        refined = edge.copy()
-        refined[:2] += weight * (measured[:2] - edge[:2])
-        refined[2] = wrap_angle(edge[2] + weight * wrap_angle(measured[2] - edge[2]))
-        self.graph.add_edge(u, v, refined)
-        self._edge_measurements[key] = min(count + 1, self.config.edge_measurements)
-        self.counters.edge_refinements += 1
+        _, vertex, pose_uv = nearest
+        key = (min(self.current, vertex), max(self.current, vertex))
+        estimate = self._edges.get(key)
+        if estimate is not None and estimate.count >= self.config.edge_measurements:
+            return
+        if self._odometer - self._odometer_at_measure.get(key, -np.inf) < 1.0:
+            return
+        self._odometer_at_measure[key] = self._odometer
+        self.counters.matches += 1
+        located = self.localizer.verify(query, vertex, between(pose_uv, here), self.config.max_neighbour_jump)
+        if located is None or located.result.covariance is None or located.result.overlap < self.matching.min_overlap:
+            return
+        if self._claims_seen_only and not self._sees(vertex, located.pose):
+            return
+        measured, covariance = compose_with_covariance(
+            here, self.pose_covariance, *inverse_with_covariance(located.pose, located.result.covariance)
+        )
+        self._measure_edge(self.current, vertex, measured, covariance)
 
     def _localize(self, query: PreparedGrid, points: NDArray[np.float32], odom: NDArray[np.float64]) -> bool:
         if len(self.graph) == 0:
@@ -363,17 +434,20 @@ class GraphMaintainer:
         for located in found:
             if self._claims_seen_only and not self._sees(located.vertex, located.pose):
                 continue
+            covariance = self._located_covariance(located)
             if self.current is None:
-                self._switch(located.vertex, located.pose)
+                self._switch(located.vertex, located.pose, covariance)
                 self.last_verified = True
                 return True
             # the located vertex's centre in the current frame, through the robot
-            pose_cu = compose(self.pose_in_current, inverse(located.pose))
+            pose_cu, covariance_cu = compose_with_covariance(
+                self.pose_in_current, self.pose_covariance, *inverse_with_covariance(located.pose, covariance)
+            )
             if self.mapping and not self._edge_acceptable(self.current, located.vertex, pose_cu):
                 continue
             if self.mapping and not self.graph.has_edge(self.current, located.vertex):
-                self.graph.add_edge(self.current, located.vertex, pose_cu)
-            self._switch(located.vertex, located.pose)
+                self._new_edge(self.current, located.vertex, pose_cu, covariance_cu)
+            self._switch(located.vertex, located.pose, covariance)
             self.last_verified = True
             return True
         return False
@@ -396,15 +470,50 @@ class GraphMaintainer:
 
     # -- graph changes -----------------------------------------------------------------------------
 
-    def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64]) -> None:
+    def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> None:
         self._odometer_verified = self._odometer
         self.current = vertex
         self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()
+        self.pose_covariance = np.zeros((3, 3)) if covariance is None else np.asarray(covariance, dtype=np.float64).copy()
+
+    def _located_covariance(self, located: Localized) -> NDArray[np.float64]:
+        """The covariance of a verified pose: the match's, or, where ``verify`` kept the guess (too
+        little shared area to trust the match's pose), the pose's own carried along."""
+        covariance = located.result.covariance
+        if covariance is None or located.result.overlap < self.matching.min_overlap:
+            return self.pose_covariance.copy()
+        return covariance
+
+    def _measure_edge(self, u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64]) -> bool:
+        """Fuse a measurement of the existing edge (u, v) into it; refused (False) when it disagrees
+        with the edge by more than ``edge_tolerance`` or 5°, or the edge has all the measurements it takes."""
+        if u > v:
+            pose_uv, covariance = inverse_with_covariance(pose_uv, covariance)
+            u, v = v, u
+        estimate = self._edges.get((u, v))
+        if estimate is None:  # an edge of a loaded graph: its stored pose counts as one measurement
+            estimate = self._edges[(u, v)] = EdgeEstimate.first(self.graph.edge(u, v), covariance)
+        if estimate.count >= self.config.edge_measurements:
+            return False
+        step = between(estimate.pose, pose_uv)
+        if float(np.hypot(step[0], step[1])) > self.config.edge_tolerance or abs(step[2]) > np.radians(5.0):
+            return False
+        estimate.fuse(pose_uv, covariance)
+        self.graph.add_edge(u, v, estimate.pose)
+        self.counters.edge_refinements += 1
+        return True
+
+    def _new_edge(self, u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
+        if u > v:
+            pose_uv, covariance = inverse_with_covariance(pose_uv, covariance)
+            u, v = v, u
+        self._edges[(u, v)] = EdgeEstimate.first(pose_uv, covariance)
+        self.graph.add_edge(u, v, pose_uv)
 
     def _add_vertex(self, grid, points, odom, stamp: float, edge_from_current: bool) -> None:
         vertex = self.graph.add_vertex(CroppedGrid.from_grid(grid), self.describe(points), odom, stamp, self._odometer)
         self._odometer_at_vertex[vertex] = self._odometer
         self.counters.new_vertices += 1
         if edge_from_current and self.current is not None:
-            self.graph.add_edge(self.current, vertex, self.pose_in_current)
+            self._new_edge(self.current, vertex, self.pose_in_current, self.pose_covariance)
         self._switch(vertex, np.zeros(3))

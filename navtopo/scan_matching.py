@@ -119,6 +119,7 @@ class MatchResult:
     wall_agreement: agreeing / (agreeing + contradicting) occupied cells, both ways.
     overlap: known-area IoU at ``pose``. matched_walls: agreeing occupied cells, both ways.
     source: "guess", "features" or "none" (nothing to match). elapsed_ms: wall clock.
+    covariance: (3, 3) of the pose (``covariance``), None when there was nothing to match.
     """
 
     pose: NDArray[np.float64]
@@ -130,6 +131,7 @@ class MatchResult:
     matched_walls: int
     source: str
     elapsed_ms: float
+    covariance: NDArray[np.float64] | None = None
 
 
 class PreparedGrid:
@@ -438,6 +440,48 @@ def _known_intersection(crop_a, row0_a, col0_a, crop_b, row0_b, col0_b, pose_ab,
 
 
 @njit(cache=True, nogil=True)
+def _field_normal_equations(points, x, y, yaw, field, row0, col0, half, resolution, cutoff):  # pragma: no cover
+    """Gauss-Newton's ``J^T J`` (3 x 3) and ``J^T d`` (3) of the points' bilinearly interpolated
+    distances on the field at pose (x, y, yaw), the sum of squared distances and the number of
+    points used (those within ``cutoff``)."""
+    height, width = field.shape
+    c, s = np.cos(yaw), np.sin(yaw)
+    h = np.zeros((3, 3))
+    g = np.zeros(3)
+    jac = np.empty(3)
+    squares = 0.0
+    used = 0
+    for k in range(points.shape[0]):
+        qx, qy = points[k, 0], points[k, 1]
+        px = c * qx - s * qy + x
+        py = s * qx + c * qy + y
+        # continuous crop coordinates with cell centres at integers
+        u = px / resolution + half - col0 - 0.5
+        v = py / resolution + half - row0 - 0.5
+        j0 = int(np.floor(u))
+        i0 = int(np.floor(v))
+        if i0 < 0 or j0 < 0 or i0 + 1 >= height or j0 + 1 >= width:
+            continue
+        fu, fv = u - j0, v - i0
+        f00, f01 = field[i0, j0], field[i0, j0 + 1]
+        f10, f11 = field[i0 + 1, j0], field[i0 + 1, j0 + 1]
+        d = (1 - fv) * ((1 - fu) * f00 + fu * f01) + fv * ((1 - fu) * f10 + fu * f11)
+        if d > cutoff:
+            continue
+        gx = ((1 - fv) * (f01 - f00) + fv * (f11 - f10)) / resolution
+        gy = ((1 - fu) * (f10 - f00) + fu * (f11 - f01)) / resolution
+        jac[0], jac[1] = gx, gy
+        jac[2] = gx * (-s * qx - c * qy) + gy * (c * qx - s * qy)
+        for a in range(3):
+            g[a] += jac[a] * d
+            for b in range(3):
+                h[a, b] += jac[a] * jac[b]
+        squares += d * d
+        used += 1
+    return h, g, squares, used
+
+
+@njit(cache=True, nogil=True)
 def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterations):
     """Gauss-Newton on the distance field of the target's occupied cells: the pose minimising
     the squared, bilinearly interpolated distances of ``points`` (those within ``cutoff``).
@@ -445,40 +489,9 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
     Along a row of wall cells the interpolated distance is the offset across the row, so this
     is point-to-line matching: no sliding bias from the cell spacing, unlike point-to-point.
     """
-    height, width = field.shape
     x, y, yaw = pose[0], pose[1], pose[2]
     for _ in range(iterations):
-        c, s = np.cos(yaw), np.sin(yaw)
-        h = np.zeros((3, 3))
-        g = np.zeros(3)
-        jac = np.empty(3)
-        used = 0
-        for k in range(points.shape[0]):
-            qx, qy = points[k, 0], points[k, 1]
-            px = c * qx - s * qy + x
-            py = s * qx + c * qy + y
-            # continuous crop coordinates with cell centres at integers
-            u = px / resolution + half - col0 - 0.5
-            v = py / resolution + half - row0 - 0.5
-            j0 = int(np.floor(u))
-            i0 = int(np.floor(v))
-            if i0 < 0 or j0 < 0 or i0 + 1 >= height or j0 + 1 >= width:
-                continue
-            fu, fv = u - j0, v - i0
-            f00, f01 = field[i0, j0], field[i0, j0 + 1]
-            f10, f11 = field[i0 + 1, j0], field[i0 + 1, j0 + 1]
-            d = (1 - fv) * ((1 - fu) * f00 + fu * f01) + fv * ((1 - fu) * f10 + fu * f11)
-            if d > cutoff:
-                continue
-            gx = ((1 - fv) * (f01 - f00) + fv * (f11 - f10)) / resolution
-            gy = ((1 - fu) * (f10 - f00) + fu * (f11 - f01)) / resolution
-            jac[0], jac[1] = gx, gy
-            jac[2] = gx * (-s * qx - c * qy) + gy * (c * qx - s * qy)
-            for a in range(3):
-                g[a] += jac[a] * d
-                for b in range(3):
-                    h[a, b] += jac[a] * jac[b]
-            used += 1
+        h, g, _, used = _field_normal_equations(points, x, y, yaw, field, row0, col0, half, resolution, cutoff)
         if used < 3:
             break
         for a in range(3):
@@ -490,6 +503,34 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
         if step[0] * step[0] + step[1] * step[1] < 1e-8 and abs(step[2]) < 1e-5:
             break
     return np.array([x, y, yaw])
+
+
+def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
+    """The pose's covariance (3 x 3; x, y in m², yaw in rad²) from the distance-field fit at it: the
+    inverse information times the residuals' variance (at least a quarter cell's). Few walls in
+    common, or walls of one direction only, leave the rotation (or the slide along them) weakly
+    fixed: the matches whose rotation is off by a degree are the ones this calls uncertain
+    (BENCHMARKS.md, "Edge measurements")."""
+    pose = np.asarray(pose, dtype=np.float64)
+    h, _, squares, used = _field_normal_equations(
+        query.occupied_xy,
+        pose[0],
+        pose[1],
+        pose[2],
+        reference.distance,
+        reference.row0,
+        reference.col0,
+        reference.half,
+        reference.resolution,
+        config.field_cutoff,
+    )
+    if used <= 3:
+        return np.diag([1.0, 1.0, 1.0])  # nothing fixes the pose: a metre and a radian
+    variance = max(squares / (used - 3), (0.25 * reference.resolution) ** 2)
+    try:
+        return variance * np.linalg.inv(h + 1e-9 * np.eye(3))
+    except np.linalg.LinAlgError:
+        return np.diag([1.0, 1.0, 1.0])
 
 
 def refine(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
@@ -606,10 +647,11 @@ def match(
 
     def result(pose, scored, inliers, source) -> MatchResult:
         accepted = source != "none" and passes(scored)
-        elapsed = (time.perf_counter() - start) * 1e3
         pose = np.array([pose[0], pose[1], wrap_angle(pose[2])], dtype=np.float64)
+        spread = None if source == "none" else covariance(reference, query, pose, config)
+        elapsed = (time.perf_counter() - start) * 1e3
         score, agreement, iou, matched = scored
-        return MatchResult(pose, score, accepted, inliers, agreement, iou, matched, source, elapsed)
+        return MatchResult(pose, score, accepted, inliers, agreement, iou, matched, source, elapsed, spread)
 
     if len(reference.occupied_xy) < 3 or len(query.occupied_xy) < 3:
         return result(guess if guess is not None else np.zeros(3), (0.0, 0.0, 0.0, 0), 0, "none")

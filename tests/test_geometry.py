@@ -63,3 +63,21 @@ def test_a_concrete_example_pins_the_direction_convention():
     ahead = np.array([2.0, 4.0, np.pi / 2])  # 3 m in front of it
     assert close(se2.between(robot, ahead), [3.0, 0.0, 0.0])
     assert np.allclose(se2.transform_points(robot, np.array([[1.0, 0.0]])), [[2.0, 2.0]])
+
+
+def _sampled_covariance(function, means, covariances, samples=200_000):
+    rng = np.random.default_rng(7)
+    draws = [m + rng.multivariate_normal(np.zeros(3), c, samples) for m, c in zip(means, covariances, strict=True)]
+    out = function(*draws) - function(*means)
+    out[:, 2] = se2.wrap_angle(out[:, 2])
+    return np.cov(out.T)
+
+
+def test_propagated_covariances_match_sampling():
+    """First-order covariances of a ⊕ b and a⁻¹ against 200k samples of small pose errors."""
+    a, b = np.array([1.0, 2.0, 0.7]), np.array([3.0, -1.0, -0.4])
+    cov_a, cov_b = np.diag([0.01, 0.02, 0.003]), np.diag([0.02, 0.01, 0.001])
+    _, composed = se2.compose_with_covariance(a, cov_a, b, cov_b)
+    assert np.allclose(composed, _sampled_covariance(se2.compose, [a, b], [cov_a, cov_b]), atol=5e-4)
+    _, inverted = se2.inverse_with_covariance(a, cov_a)
+    assert np.allclose(inverted, _sampled_covariance(se2.inverse, [a], [cov_a]), atol=5e-4)

@@ -143,3 +143,65 @@ def test_config_rejects_unknown_keys():
     with pytest.raises(ValidationError):
         MatchingConfig(ransac_iters=10)
     assert MatchingConfig().min_wall_agreement > 0.5
+
+
+def _sigmas(result: MatchResult) -> tuple[float, float, float]:
+    """One-sigma x, y (m) and yaw (degrees) of a match, from its covariance."""
+    x, y, yaw = np.sqrt(np.diag(result.covariance))
+    return float(x), float(y), float(np.degrees(yaw))
+
+
+def test_a_bare_corridor_leaves_the_slide_along_it_less_certain():
+    """Two parallel walls fix the cross-corridor offset, not the position along the corridor (only
+    the walls' ends at the lidar's range do): the covariance says so, against the cross direction
+    and against the building, whose niches and rooms fix both."""
+    world = RasterWorld(-2.0, -5.0, 60.0, 10.0).add_box(-2.0, 58.0, -5.0, 5.0)
+    world.heights[int(round(3.8 / world.res)) : int(round(6.2 / world.res)), :] = 0.0  # y in [-1.2, 1.2)
+    a, b = np.array([20.0, 0.2, 0.0]), np.array([21.0, -0.1, 0.05])
+    bare = match(grid_at(a, world), grid_at(b, world), initial_guess=between(a, b))
+    built = match(grid_at(POSE_A), grid_at(POSE_B), initial_guess=between(POSE_A, POSE_B))
+    sigma_x, sigma_y, _ = _sigmas(bare)
+    assert sigma_x > 1.5 * sigma_y and sigma_x > 1.5 * _sigmas(built)[0]
+    assert abs(bare.pose[1] - between(a, b)[1]) < 3.0 * sigma_y + 0.01  # the fixed direction is right
+
+
+def test_the_covariance_grows_as_the_shared_walls_shrink():
+    """A match 0.5 m from the reference shares most walls; one 5 m away shares few and fixes the
+    rotation worse. Both poses are within a few of their sigmas of the truth."""
+    near, far = np.array([9.5, 0.1, 0.12]), np.array([14.0, -0.2, 0.15])
+    reference = grid_at(POSE_A)
+    results = {}
+    for name, pose in (("near", near), ("far", far)):
+        truth = between(POSE_A, pose)
+        result = match(reference, grid_at(pose), initial_guess=truth + np.array([0.1, -0.1, 0.02]))
+        assert result.accepted
+        translation, rotation = pose_error(result, truth)
+        sigma_x, sigma_y, sigma_yaw = _sigmas(result)
+        assert rotation < 5.0 * sigma_yaw + 0.05 and translation < 5.0 * np.hypot(sigma_x, sigma_y) + 0.02
+        results[name] = sigma_yaw
+    assert results["far"] > results["near"]
+
+
+def test_a_hint_off_by_more_than_the_guess_window_still_finds_the_place_within_its_gate():
+    """Localizing with an odometry hint that drift has moved 4 m (a loop coming round): the hinted
+    match misses (its features are looked for within 2 m of the guess), the unguided one finds the
+    true pose, and it is kept because the gate (6 m) allows it — but not with a 3 m gate."""
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig, Localizer, VertexGrids
+
+    graph = TopologicalGraph(4)
+    reference = grid_at(POSE_A)
+    graph.add_vertex(CroppedGrid.from_grid(reference), np.ones(4, dtype=np.float32), np.zeros(3), stamp=0.0)
+    matching = MatchingConfig()
+    localizer = Localizer(graph, VertexGrids(graph, CONFIG, matching, 4), LocalizationConfig(near_k=0), matching, CONFIG)
+    truth = between(POSE_A, POSE_B)
+    # the robot by odometry, in the hints' frame (the vertex's hint is the origin): 4 m back
+    drifted_hint = truth + np.array([-4.0, 0.0, np.radians(4.0)])
+    assert np.hypot(*drifted_hint[:2]) < 3.0  # a candidate for both gates below
+    query = PreparedGrid(grid_at(POSE_B), CONFIG, matching)
+    assert localizer.verify(query, 0, drifted_hint, 6.0, strict=True) is None  # the hinted match alone misses
+    found = localizer.localize(query, np.ones(4, dtype=np.float32), robot_hint=drifted_hint, hint_gate={0: 6.0})
+    assert len(found) == 1 and pose_error(found[0].result, truth)[0] < 0.1
+    # 4 m from the hint is more than a 3 m gate allows
+    assert localizer.localize(query, np.ones(4, dtype=np.float32), robot_hint=drifted_hint, hint_gate={0: 3.0}) == []
