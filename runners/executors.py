@@ -20,8 +20,9 @@ raises ends with ``Failure("error")``. The caller decides what a failure means f
 
 Ctrl-C (SIGINT to the driver) stops at once: local workers ignore SIGINT (a terminal sends it to
 the whole process group; the driver decides), and leaving ``events`` (or ``close``) drops the
-queued jobs and kills the running ones; ``KeyboardInterrupt`` reaches the caller. A local worker
-also exits by itself when its driver is gone (killed with SIGKILL), so nothing runs on unseen.
+queued jobs and kills the running ones; ``KeyboardInterrupt`` reaches the caller. Ctrl-C again
+during that cleanup is ignored until it ends (``uninterrupted``). A local worker also exits by
+itself when its driver is gone (killed with SIGKILL), so nothing runs on unseen.
 
 Ray stays on loopback unless given a cluster's address: before Ray is imported the environment
 turns off its usage statistics and points HTTP proxies at a closed local port; a private instance
@@ -31,6 +32,7 @@ node on 127.0.0.1 and a temporary folder of its own, and is shut down when the e
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import multiprocessing
 import os
@@ -164,10 +166,11 @@ class Executor:
 
     def cancel(self) -> None:
         """Drop the queued jobs and kill the running ones."""
-        self._queued.clear()
-        running, self._running = list(self._running.values()), {}
-        for run in running:
-            self._kill(run)
+        with uninterrupted():
+            self._queued.clear()
+            running, self._running = list(self._running.values()), {}
+            for run in running:
+                self._kill(run)
 
     def close(self) -> None:
         self.cancel()
@@ -187,6 +190,21 @@ class Executor:
 
     def _put(self, run: _Running, kind: str, payload: Any) -> None:
         self._inbox.put((run.id, kind, payload))
+
+
+@contextlib.contextmanager
+def uninterrupted() -> Iterator[None]:
+    """Ctrl-C pressed again while an executor cleans up (kills its jobs, shuts a private Ray
+    instance down: seconds) must not cut the cleanup short and leave processes or temporary files
+    behind: SIGINT is ignored until it is done (SIGTERM and SIGKILL still end the driver)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -379,6 +397,10 @@ class RayExecutor(Executor):
                 pass
 
     def close(self) -> None:
+        with uninterrupted():
+            self._close()
+
+    def _close(self) -> None:
         super().close()
         if self._ray is not None and self._ray.is_initialized():
             self._ray.shutdown()

@@ -371,6 +371,51 @@ def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
     assert not (tmp_path / "b").exists(), "a queued job ran after Ctrl-C"
 
 
+def test_a_second_ctrl_c_does_not_cut_the_cleanup_short(tmp_path):
+    """Cleanup can take seconds (a private Ray instance shutting down; here a kill made slow): Ctrl-C
+    pressed again meanwhile is ignored, the cleanup finishes and the driver exits 130, no traceback."""
+    import signal
+    import subprocess
+    import sys
+
+    (tmp_path / "slow_job.py").write_text(
+        "import time\nfrom pathlib import Path\n\n\n"
+        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n    yield {}\n"
+    )
+    driver = (
+        "import sys, time\n"
+        "from pathlib import Path\n"
+        f"sys.path.insert(0, {str(tmp_path)!r})\n"
+        "import slow_job\n"
+        "from runners.executors import LocalExecutor\n"
+        f"folder = Path({str(tmp_path)!r})\n"
+        "class SlowToClean(LocalExecutor):\n"
+        "    def _kill(self, run):\n"
+        "        (folder / 'cleaning').write_text('')\n"
+        "        time.sleep(3.0)\n"
+        "        super()._kill(run)\n"
+        "        (folder / 'cleaned').write_text('')\n"
+        "try:\n"
+        "    with SlowToClean(1) as pool:\n"
+        "        pool.submit('a', slow_job.job, str(folder / 'a'))\n"
+        "        for _ in pool.events():\n"
+        "            pass\n"
+        "except KeyboardInterrupt:\n"
+        "    sys.exit(130)\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", driver], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    try:
+        assert wait_for(lambda: (tmp_path / "a").exists(), 60), "the job never started"
+        process.send_signal(signal.SIGINT)
+        assert wait_for(lambda: (tmp_path / "cleaning").exists(), 20), "no cleanup began"
+        process.send_signal(signal.SIGINT)  # again, while it cleans up
+        assert process.wait(timeout=30) == 130
+    finally:
+        process.kill()
+    assert "Traceback" not in process.stderr.read()
+    assert (tmp_path / "cleaned").exists(), "the second Ctrl-C cut the cleanup short"
+
+
 def test_ctrl_c_during_trials_exits_130_and_the_run_resumes_with_nothing_lost(tmp_path):
     import json
     import signal
