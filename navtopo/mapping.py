@@ -8,8 +8,10 @@ it, ``pose_in_current``, integrated from odometry. Then, in the paper's order:
    ``min_overlap``, and the robot's cell is one the location saw — or, if it never saw it, scan
    matching against the location agrees) → keep it; scan matching against the location corrects
    ``pose_in_current`` when it agrees with odometry;
-2. else move along an edge: the neighbours nearer than the current centre, each verified by scan
-   matching seeded with the pose the edge predicts;
+2. else move along an edge: navigating, the path's next vertex first (the paper's order; the
+   nearest neighbour may be the vertex the path just came from, and switching back to it made the
+   robot shuttle between two locations); then the neighbours nearer than the current centre, each
+   verified by scan matching seeded with the pose the edge predicts;
 3. else a verified localization result (top-k descriptors, scan matching seeded by the
    vertices' odometry hints and gated by the drift odometry can explain); an edge to it is added
    if it passes the checks below — a loop closure when the graph's way round is much longer;
@@ -247,6 +249,11 @@ class GraphMaintainer:
             if self.mapping and self.last_verified:
                 self._measure_neighbour(query)
             return "inside"
+        if self.current is not None and route and len(route) > 1 and self._move_along_route(query, route[1], nearer=False):
+            # out of the location's reach: the paper's next try is the path's next vertex, before any
+            # other neighbour (the nearest one may be the vertex the path just came from)
+            self.counters.moved_along_route += 1
+            return "route"
         if self.current is not None and self._move_along_edge(query):
             self.counters.moved_along_edge += 1
             return "edge"
@@ -263,14 +270,15 @@ class GraphMaintainer:
         self.counters.odometry_only += 1
         return "lost"
 
-    def _move_along_route(self, query: PreparedGrid, next_vertex: int) -> bool:
-        """Switch to the route's next vertex once nearer to it than to the current one, if matching agrees."""
+    def _move_along_route(self, query: PreparedGrid, next_vertex: int, nearer: bool = True) -> bool:
+        """Switch to the route's next vertex if matching agrees: once nearer to it than to the current
+        one (``nearer``), or wherever the robot is (it has left the current location's reach)."""
         assert self.current is not None
         if not self.graph.has_edge(self.current, next_vertex):
             return False
         here = self.pose_in_current
         pose_uv = self.graph.edge(self.current, next_vertex)
-        if float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
+        if nearer and float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
             return False
         self.counters.matches += 1
         located = self.localizer.verify(query, next_vertex, between(pose_uv, here), self.config.max_neighbour_jump)

@@ -205,3 +205,37 @@ def test_a_hint_off_by_more_than_the_guess_window_still_finds_the_place_within_i
     assert len(found) == 1 and pose_error(found[0].result, truth)[0] < 0.1
     # 4 m from the hint is more than a 3 m gate allows
     assert localizer.localize(query, np.ones(4, dtype=np.float32), robot_hint=drifted_hint, hint_gate={0: 3.0}) == []
+
+
+def test_out_of_reach_the_path_s_next_vertex_is_tried_before_the_nearest_neighbour():
+    """Navigating from B (a hall off the corridor) to C (west along the corridor) on a graph whose
+    way there is A - B - C: back in the corridor, out of B's reach and nearest to A, the robot moves
+    to C, the path's next vertex — not to A, whose path leads back through B (the robot shuttled
+    between A and B)."""
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+
+    poses = {"A": np.array([12.5, 0.0, 0.0]), "B": np.array([13.0, 5.0, np.pi / 2]), "C": np.array([5.5, 0.0, np.pi])}
+    graph = TopologicalGraph(4)
+    ids = {}
+    for name, pose in poses.items():
+        grid = CroppedGrid.from_grid(grid_at(pose))
+        ids[name] = graph.add_vertex(grid, np.ones(4, dtype=np.float32), pose, stamp=float(len(ids)))
+    graph.add_edge(ids["A"], ids["B"], between(poses["A"], poses["B"]))
+    graph.add_edge(ids["B"], ids["C"], between(poses["B"], poses["C"]))
+    describe = lambda points: np.ones(4, dtype=np.float32)  # noqa: E731 - no recognition needed here
+    maintainer = GraphMaintainer(graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False)
+    robot = np.array([11.5, 0.0, np.pi])
+    to_b, to_c = (np.hypot(*(robot[:2] - poses[name][:2])) for name in "BC")
+    assert MappingConfig().max_edge_length < to_b < to_c  # out of B's reach, yet not nearer to C
+    maintainer.start_at(ids["B"], between(poses["B"], robot), robot)
+    points = lidar_scan(WORLD, robot, ceiling=WALL_HEIGHT)
+    happened = maintainer.update(points, robot, stamp=1.0, route=[ids["B"], ids["C"]], force=True)
+    assert happened == "route" and maintainer.current == ids["C"]
+    assert pose_error_of(maintainer.pose_in_current, between(poses["C"], robot)) < 0.1
+
+
+def pose_error_of(pose, truth) -> float:
+    return float(np.hypot(*(np.asarray(pose)[:2] - np.asarray(truth)[:2])))
