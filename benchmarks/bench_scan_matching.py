@@ -173,7 +173,32 @@ def near_summary(records: list[dict], min_true_overlap: float = 0.0) -> dict:
         if accepted.any()
         else None,
         "accepted_wrong": int(np.count_nonzero(accepted & ((t > 0.5) | (a > 5.0)))),
+        "accepted_rotation_by_sigma": _by_sigma(
+            a[accepted], [r["rotation_sigma_deg"] for r, ok in zip(records, accepted, strict=True) if ok]
+        ),
         "ms": _timing(records),
+    }
+
+
+def _by_sigma(errors: np.ndarray, sigmas: list) -> dict | None:
+    """The matcher's rotation sigma against its errors: error / sigma (median, p90), and the median
+    and largest error in each quartile of sigma (the least certain last)."""
+    if len(errors) < 4 or any(s is None for s in sigmas):
+        return None
+    sigma = np.asarray(sigmas, dtype=np.float64)
+    edges = np.quantile(sigma, [0.0, 0.25, 0.5, 0.75, 1.0])
+    quartile = np.clip(np.searchsorted(edges, sigma, side="right") - 1, 0, 3)
+    return {
+        "error_over_sigma": {"median": _r(np.median(errors / sigma)), "p90": _r(np.percentile(errors / sigma, 90))},
+        "quartiles": [
+            {
+                "sigma_deg": [_r(edges[q]), _r(edges[q + 1])],
+                "error_deg_median": _r(np.median(errors[quartile == q])),
+                "error_deg_max": _r(np.max(errors[quartile == q])),
+            }
+            for q in range(4)
+            if np.any(quartile == q)
+        ],
     }
 
 

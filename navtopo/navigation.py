@@ -24,7 +24,8 @@ when ``v_cur == v_goal`` and ``|T_cur - T_goal| < ε`` (the protocol's stop tole
 the local planner is given the next target on the global path (``navtopo.planning``).
 
 Failure handling: a local plan that finds no way to the next vertex (a closed door, an obstacle
-the map lacks) removes that edge for the rest of the trial and plans again over the graph; no path
+the map lacks), or only a long way round (``detour_factor``), removes that edge for the rest of
+the trial and plans again over the graph; no path
 over the graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge
 being followed, and a second time fails with ``stuck``.
 """
@@ -84,6 +85,12 @@ class NavigationConfig(BaseModel):
     block_check_distance: float = Field(4.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block the path")
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
+    detour_factor: float = Field(
+        2.0, gt=1, description="a local path to the next target longer than this times the straight distance ..."
+    )
+    detour_margin: float = Field(
+        4.0, ge=0, description="... plus this (m) is a way round a blocked edge, not along it: the edge is removed"
+    )
 
 
 @dataclass
@@ -325,6 +332,7 @@ class Navigator:
                 "reached_by_composition",
                 "reached_short",
                 "explore_moves",
+                "detours_refused",
             ],
             0,
         )
@@ -572,10 +580,11 @@ class Navigator:
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
             union = self.unions.get(vertex)
             target = self.local.target(union, pose, points)
-            planned = self.local.plan(union, pose, target, self._recent_obstacles())
+            along_edge = not tentative and len(route) > 1
+            planned = self._local_plan(union, pose, target, along_edge)
             if planned is None and not np.allclose(target, points[0]):  # a shorter reach: the next vertex
                 target = points[0]
-                planned = self.local.plan(union, pose, target, self._recent_obstacles())
+                planned = self._local_plan(union, pose, target, along_edge)
             self.counters["plans"] += 1
             if planned is not None or len(route) == 1 or tentative:
                 break
@@ -596,6 +605,22 @@ class Navigator:
         self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
         return True
+
+    def _local_plan(self, union, pose: NDArray, target: NDArray, along_edge: bool):
+        """The local plan to ``target``, or None — also, on the way to another location
+        (``along_edge``), when it is a long way round: with the edge's way blocked (a door shut
+        since mapping), the union grid may still hold a detour through the neighbours' areas, and
+        following it leaves the location the wrong way, where the robot moved back and forth
+        between two locations until its time ran out. The graph knows the ways round; the edge goes."""
+        planned = self.local.plan(union, pose, target, self._recent_obstacles())
+        if planned is None or not along_edge:
+            return planned
+        straight = float(np.hypot(*(np.asarray(target)[:2] - pose[:2])))
+        length = float(np.sum(np.hypot(*np.diff(planned.points[:, :2], axis=0).T)))
+        if length > self.config.detour_factor * straight + self.config.detour_margin:
+            self.counters["detours_refused"] += 1
+            return None
+        return planned
 
     def _timed(self, t0: float) -> None:
         elapsed = (time.perf_counter() - t0) * 1e3

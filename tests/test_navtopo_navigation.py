@@ -191,3 +191,32 @@ def test_a_goal_estimated_into_a_wall_is_approached_never_driven_into():
     free_goal = np.array([1.5, 0.4])
     reached = planner.plan(union, np.zeros(3), free_goal)
     assert reached is not None and np.array_equal(reached.points[-1], free_goal)
+
+
+@pytest.mark.parametrize(("wall_to_y", "refused"), [(2.0, False), (8.0, True)])
+def test_a_long_way_round_to_the_next_location_counts_as_a_blocked_edge(wall_to_y, refused):
+    """The next location 4 m ahead behind a wall that a local path can pass round: 2 m beyond the
+    straight line the way round (~6 m) is kept; 8 m beyond it (~17 m, more than twice the distance
+    plus 4 m) the plan is refused, so that the edge goes and the graph's way round is taken."""
+    from types import SimpleNamespace
+
+    from navtopo.navigation import NavigationConfig, Navigator
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), FREE, np.uint8)
+    centre = GRID.size // 2
+    col = centre + int(round(2.0 / GRID.resolution))
+    grid[centre - int(round(10.0 / GRID.resolution)) : centre + int(round(wall_to_y / GRID.resolution)), col : col + 2] = OCCUPIED
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    local = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig())
+    navigator = SimpleNamespace(
+        local=local, config=NavigationConfig(), counters={"detours_refused": 0}, _recent_obstacles=lambda: np.zeros((0, 2))
+    )
+    target = np.array([4.0, 0.0])
+    way = local.plan(union, np.zeros(3), target)
+    length = float(np.sum(np.hypot(*np.diff(way.points[:, :2], axis=0).T)))
+    assert length == pytest.approx(2.0 * np.hypot(2.0, wall_to_y + 0.4), rel=0.15)  # round the wall's end
+    planned = Navigator._local_plan(navigator, union, np.zeros(3), target, along_edge=True)
+    assert (planned is None) == refused and navigator.counters["detours_refused"] == int(refused)
+    assert Navigator._local_plan(navigator, union, np.zeros(3), target, along_edge=False) is not None  # to the goal itself
