@@ -25,7 +25,8 @@ the local planner is given the next target on the global path (``navtopo.plannin
 
 Failure handling: a local plan that finds no way to the next vertex (a closed door, an obstacle
 the map lacks), or only a long way round (``detour_factor``), removes that edge for the rest of
-the trial and plans again over the graph; no path
+the trial and plans again over the graph, as does leaving the path twice from one location toward
+the same next one (``fallbacks_to_remove``); no path
 over the graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge
 being followed, and a second time fails with ``stuck``.
 """
@@ -85,6 +86,9 @@ class NavigationConfig(BaseModel):
     block_check_distance: float = Field(4.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block the path")
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
+    fallbacks_to_remove: int = Field(
+        2, ge=1, description="times the robot leaves the path from one location toward the same next one before that edge goes"
+    )
     detour_factor: float = Field(
         2.0, gt=1, description="a local path to the next target longer than this times the straight distance ..."
     )
@@ -310,6 +314,7 @@ class Navigator:
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
     _progress: tuple[float, NDArray[np.float64]] | None = None
     _stuck_once: bool = False
+    _fallbacks: dict[tuple[int, int], int] = field(default_factory=dict)  # (v_cur, next) -> times left off the path
     _explore: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (odom at start, path in that frame)
     _tentative: Hypothesis | None = None
     _explore_until: float = 0.0  # the startup odometer reading where the current exploring move ends
@@ -333,6 +338,7 @@ class Navigator:
                 "reached_short",
                 "explore_moves",
                 "detours_refused",
+                "fallback_removals",
             ],
             0,
         )
@@ -348,6 +354,7 @@ class Navigator:
         self._obstacle_vertex = None
         self._progress = None
         self._stuck_once = False
+        self._fallbacks = {}
         self._explore = None
         self._tentative = None
         self._explore_until = 0.0
@@ -379,10 +386,11 @@ class Navigator:
             return Command()
         if not self.localized:
             return self._step_unlocalized(obs)
-        before = self.maintainer.current
-        event = self.maintainer.update(obs.points, obs.odom, obs.stamp, route=self._route, force=self._at_path_end())
+        before, route = self.maintainer.current, self._route
+        event = self.maintainer.update(obs.points, obs.odom, obs.stamp, route=route, force=self._at_path_end())
         if self.maintainer.current != before or event == "localized":
             self._path_vertex = None  # a new frame: plan again
+            self._left_path(before, self.maintainer.current, route)
         return self._drive(obs, self.maintainer.current, self.maintainer.pose_in_current)
 
     def _step_unlocalized(self, obs: Observation) -> Command:
@@ -649,6 +657,21 @@ class Navigator:
 
     def _recent_obstacles(self) -> NDArray[np.float64]:
         return self.obstacles.points
+
+    def _left_path(self, before: int | None, after: int | None, route: list[int] | None) -> None:
+        """The robot moved from ``before`` to a location off its path (back to where the path came
+        from, or aside): the way to the path's next vertex did not work. A second time from the same
+        vertex toward the same next one, that edge goes (as a failed transition does in the paper):
+        without it the robot went back and forth between two locations while it kept moving, so the
+        stuck check never fired."""
+        if before is None or after is None or not route or len(route) < 2 or route[0] != before or after in route[1:]:
+            return
+        key = (before, route[1])
+        self._fallbacks[key] = self._fallbacks.get(key, 0) + 1
+        if self._fallbacks[key] >= self.config.fallbacks_to_remove:
+            self.counters["edges_removed"] += 1
+            self.counters["fallback_removals"] += 1
+            self.global_planner.remove_edge(*key)
 
     def _stuck(self, obs: Observation, pose: NDArray) -> bool:
         """No progress for ``stuck_time``: remove the edge being followed and replan; twice: fail."""

@@ -220,3 +220,26 @@ def test_a_long_way_round_to_the_next_location_counts_as_a_blocked_edge(wall_to_
     planned = Navigator._local_plan(navigator, union, np.zeros(3), target, along_edge=True)
     assert (planned is None) == refused and navigator.counters["detours_refused"] == int(refused)
     assert Navigator._local_plan(navigator, union, np.zeros(3), target, along_edge=False) is not None  # to the goal itself
+
+
+def test_leaving_the_path_twice_from_one_location_removes_the_edge_it_could_not_follow():
+    """A square loop 0-1-2-3 with the goal at 2, the robot in 1 on the path 1 -> 2: falling back to 0
+    once keeps the edge (a corner cut), a second time removes 1-2 and the path goes round by 0 and
+    3; moving on along the path counts nothing."""
+    from types import SimpleNamespace
+
+    from navtopo.navigation import NavigationConfig, Navigator
+
+    graph = _graph([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 10.0, 0.0], [0.0, 10.0, 0.0]], [(0, 1), (1, 2), (2, 3), (3, 0)])
+    planner = GlobalPlanner(graph)
+    planner.set_goal(2)
+    navigator = SimpleNamespace(
+        config=NavigationConfig(), counters={"edges_removed": 0, "fallback_removals": 0}, _fallbacks={}, global_planner=planner
+    )
+    route = planner.path(1)
+    assert route == [1, 2]
+    Navigator._left_path(navigator, 1, 2, route)  # along the path
+    Navigator._left_path(navigator, 1, 0, route)  # back, once
+    assert planner.path(1) == [1, 2] and navigator.counters["edges_removed"] == 0
+    Navigator._left_path(navigator, 1, 0, route)  # back again
+    assert navigator.counters["fallback_removals"] == 1 and planner.path(1) == [1, 0, 3, 2]
