@@ -24,11 +24,10 @@ when ``v_cur == v_goal`` and ``|T_cur - T_goal| < ε`` (the protocol's stop tole
 the local planner is given the next target on the global path (``navtopo.planning``).
 
 Failure handling: a local plan that finds no way to the next vertex (a closed door, an obstacle
-the map lacks), or only a long way round (``detour_factor``), removes that edge for the rest of
-the trial and plans again over the graph, as does leaving the path twice from one location toward
-the same next one (``fallbacks_to_remove``); no path
-over the graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge
-being followed, and a second time fails with ``stuck``.
+the map lacks) removes that edge for the rest of the trial and plans again over the graph, as does
+falling back off the path twice before the same edge (``fallbacks_to_remove``); no path over the
+graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge being
+followed, and a second time fails with ``stuck``.
 """
 
 from __future__ import annotations
@@ -87,13 +86,7 @@ class NavigationConfig(BaseModel):
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block the path")
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
     fallbacks_to_remove: int = Field(
-        2, ge=1, description="times the robot leaves the path from one location toward the same next one before that edge goes"
-    )
-    detour_factor: float = Field(
-        2.0, gt=1, description="a local path to the next target longer than this times the straight distance ..."
-    )
-    detour_margin: float = Field(
-        4.0, ge=0, description="... plus this (m) is a way round a blocked edge, not along it: the edge is removed"
+        2, ge=1, description="times the robot falls back off the path before the same edge (still ahead) before that edge goes"
     )
 
 
@@ -314,7 +307,8 @@ class Navigator:
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
     _progress: tuple[float, NDArray[np.float64]] | None = None
     _stuck_once: bool = False
-    _fallbacks: dict[tuple[int, int], int] = field(default_factory=dict)  # (v_cur, next) -> times left off the path
+    _suspect: tuple[int, int] | None = None  # the edge the robot last fell back from, not yet passed
+    _fallbacks: int = 0  # times it fell back since
     _explore: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (odom at start, path in that frame)
     _tentative: Hypothesis | None = None
     _explore_until: float = 0.0  # the startup odometer reading where the current exploring move ends
@@ -337,7 +331,6 @@ class Navigator:
                 "reached_by_composition",
                 "reached_short",
                 "explore_moves",
-                "detours_refused",
                 "fallback_removals",
             ],
             0,
@@ -354,7 +347,7 @@ class Navigator:
         self._obstacle_vertex = None
         self._progress = None
         self._stuck_once = False
-        self._fallbacks = {}
+        self._suspect, self._fallbacks = None, 0
         self._explore = None
         self._tentative = None
         self._explore_until = 0.0
@@ -588,11 +581,10 @@ class Navigator:
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
             union = self.unions.get(vertex)
             target = self.local.target(union, pose, points)
-            along_edge = not tentative and len(route) > 1
-            planned = self._local_plan(union, pose, target, along_edge)
+            planned = self.local.plan(union, pose, target, self._recent_obstacles())
             if planned is None and not np.allclose(target, points[0]):  # a shorter reach: the next vertex
                 target = points[0]
-                planned = self._local_plan(union, pose, target, along_edge)
+                planned = self.local.plan(union, pose, target, self._recent_obstacles())
             self.counters["plans"] += 1
             if planned is not None or len(route) == 1 or tentative:
                 break
@@ -613,22 +605,6 @@ class Navigator:
         self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
         return True
-
-    def _local_plan(self, union, pose: NDArray, target: NDArray, along_edge: bool):
-        """The local plan to ``target``, or None — also, on the way to another location
-        (``along_edge``), when it is a long way round: with the edge's way blocked (a door shut
-        since mapping), the union grid may still hold a detour through the neighbours' areas, and
-        following it leaves the location the wrong way, where the robot moved back and forth
-        between two locations until its time ran out. The graph knows the ways round; the edge goes."""
-        planned = self.local.plan(union, pose, target, self._recent_obstacles())
-        if planned is None or not along_edge:
-            return planned
-        straight = float(np.hypot(*(np.asarray(target)[:2] - pose[:2])))
-        length = float(np.sum(np.hypot(*np.diff(planned.points[:, :2], axis=0).T)))
-        if length > self.config.detour_factor * straight + self.config.detour_margin:
-            self.counters["detours_refused"] += 1
-            return None
-        return planned
 
     def _timed(self, t0: float) -> None:
         elapsed = (time.perf_counter() - t0) * 1e3
@@ -659,19 +635,26 @@ class Navigator:
         return self.obstacles.points
 
     def _left_path(self, before: int | None, after: int | None, route: list[int] | None) -> None:
-        """The robot moved from ``before`` to a location off its path (back to where the path came
-        from, or aside): the way to the path's next vertex did not work. A second time from the same
-        vertex toward the same next one, that edge goes (as a failed transition does in the paper):
-        without it the robot went back and forth between two locations while it kept moving, so the
-        stuck check never fired."""
-        if before is None or after is None or not route or len(route) < 2 or route[0] != before or after in route[1:]:
+        """Falling back: the robot moved from ``before`` off its path (back where the path came from,
+        or aside), so the way to the path's next vertex did not work; that edge is suspect until the
+        robot gets past it. Falling back again — from there, or further back while the suspect edge
+        is still ahead on the path — the suspect edge goes (as a failed transition does in the
+        paper): without this the robot went back and forth between two locations while it kept
+        moving, so the stuck check never fired (loop_office_door, precise)."""
+        if before is None or after is None or not route or len(route) < 2 or route[0] != before:
             return
-        key = (before, route[1])
-        self._fallbacks[key] = self._fallbacks.get(key, 0) + 1
-        if self._fallbacks[key] >= self.config.fallbacks_to_remove:
+        if after in route[1:]:  # on along the path: past the suspect edge?
+            if self._suspect is not None and self._suspect[1] in route[1 : route.index(after) + 1]:
+                self._suspect, self._fallbacks = None, 0
+            return
+        if self._suspect is None or self._suspect[0] not in route:
+            self._suspect, self._fallbacks = (before, route[1]), 0
+        self._fallbacks += 1
+        if self._fallbacks >= self.config.fallbacks_to_remove:
             self.counters["edges_removed"] += 1
             self.counters["fallback_removals"] += 1
-            self.global_planner.remove_edge(*key)
+            self.global_planner.remove_edge(*self._suspect)
+            self._suspect, self._fallbacks = None, 0
 
     def _stuck(self, obs: Observation, pose: NDArray) -> bool:
         """No progress for ``stuck_time``: remove the edge being followed and replan; twice: fail."""

@@ -193,53 +193,31 @@ def test_a_goal_estimated_into_a_wall_is_approached_never_driven_into():
     assert reached is not None and np.array_equal(reached.points[-1], free_goal)
 
 
-@pytest.mark.parametrize(("wall_to_y", "refused"), [(2.0, False), (8.0, True)])
-def test_a_long_way_round_to_the_next_location_counts_as_a_blocked_edge(wall_to_y, refused):
-    """The next location 4 m ahead behind a wall that a local path can pass round: 2 m beyond the
-    straight line the way round (~6 m) is kept; 8 m beyond it (~17 m, more than twice the distance
-    plus 4 m) the plan is refused, so that the edge goes and the graph's way round is taken."""
-    from types import SimpleNamespace
-
-    from navtopo.navigation import NavigationConfig, Navigator
-    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
-
-    grid = np.full((GRID.size, GRID.size), FREE, np.uint8)
-    centre = GRID.size // 2
-    col = centre + int(round(2.0 / GRID.resolution))
-    grid[centre - int(round(10.0 / GRID.resolution)) : centre + int(round(wall_to_y / GRID.resolution)), col : col + 2] = OCCUPIED
-    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
-    union = build_union_grid(graph, 0, GRID, radius=25.0)
-    local = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig())
-    navigator = SimpleNamespace(
-        local=local, config=NavigationConfig(), counters={"detours_refused": 0}, _recent_obstacles=lambda: np.zeros((0, 2))
-    )
-    target = np.array([4.0, 0.0])
-    way = local.plan(union, np.zeros(3), target)
-    length = float(np.sum(np.hypot(*np.diff(way.points[:, :2], axis=0).T)))
-    assert length == pytest.approx(2.0 * np.hypot(2.0, wall_to_y + 0.4), rel=0.15)  # round the wall's end
-    planned = Navigator._local_plan(navigator, union, np.zeros(3), target, along_edge=True)
-    assert (planned is None) == refused and navigator.counters["detours_refused"] == int(refused)
-    assert Navigator._local_plan(navigator, union, np.zeros(3), target, along_edge=False) is not None  # to the goal itself
-
-
-def test_leaving_the_path_twice_from_one_location_removes_the_edge_it_could_not_follow():
-    """A square loop 0-1-2-3 with the goal at 2, the robot in 1 on the path 1 -> 2: falling back to 0
-    once keeps the edge (a corner cut), a second time removes 1-2 and the path goes round by 0 and
-    3; moving on along the path counts nothing."""
+def test_falling_back_twice_before_an_edge_removes_that_edge_and_no_other():
+    """A corridor 0-1-2-3 with a way round 0-4-3, the goal at 3. Falling back once keeps the edge
+    (a corner cut); falling back from 2 (toward 3) and then from 1 (the edge 2-3 still ahead) removes
+    2-3, not 1-2, and the path goes round; getting past a suspect edge forgives it."""
     from types import SimpleNamespace
 
     from navtopo.navigation import NavigationConfig, Navigator
 
-    graph = _graph([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 10.0, 0.0], [0.0, 10.0, 0.0]], [(0, 1), (1, 2), (2, 3), (3, 0)])
-    planner = GlobalPlanner(graph)
-    planner.set_goal(2)
-    navigator = SimpleNamespace(
-        config=NavigationConfig(), counters={"edges_removed": 0, "fallback_removals": 0}, _fallbacks={}, global_planner=planner
-    )
-    route = planner.path(1)
-    assert route == [1, 2]
-    Navigator._left_path(navigator, 1, 2, route)  # along the path
-    Navigator._left_path(navigator, 1, 0, route)  # back, once
-    assert planner.path(1) == [1, 2] and navigator.counters["edges_removed"] == 0
-    Navigator._left_path(navigator, 1, 0, route)  # back again
-    assert navigator.counters["fallback_removals"] == 1 and planner.path(1) == [1, 0, 3, 2]
+    poses = [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [10.0, 0.0, 0.0], [15.0, 0.0, 0.0], [7.5, 8.0, 0.0]]
+    graph = _graph(poses, [(0, 1), (1, 2), (2, 3), (0, 4), (4, 3)])
+
+    def navigator():
+        planner = GlobalPlanner(graph)
+        planner.set_goal(3)
+        counters = {"edges_removed": 0, "fallback_removals": 0}
+        return SimpleNamespace(config=NavigationConfig(), counters=counters, _suspect=None, _fallbacks=0, global_planner=planner)
+
+    nav = navigator()
+    Navigator._left_path(nav, 2, 1, [2, 3])  # fell back from 2: 2-3 suspect
+    assert nav.counters["edges_removed"] == 0 and nav.global_planner.path(2) == [2, 3]
+    Navigator._left_path(nav, 1, 0, [1, 2, 3])  # and further back, 2-3 still ahead
+    assert nav.global_planner.removed == {frozenset((2, 3))} and nav.global_planner.path(1) == [1, 0, 4, 3]
+
+    nav = navigator()
+    Navigator._left_path(nav, 2, 1, [2, 3])  # a corner cut ...
+    Navigator._left_path(nav, 2, 3, [2, 3])  # ... then on past the edge: forgiven
+    Navigator._left_path(nav, 1, 0, [1, 2, 3])
+    assert nav.counters["edges_removed"] == 0 and nav._suspect == (1, 2)
