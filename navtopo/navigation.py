@@ -24,10 +24,9 @@ when ``v_cur == v_goal`` and ``|T_cur - T_goal| < ε`` (the protocol's stop tole
 the local planner is given the next target on the global path (``navtopo.planning``).
 
 Failure handling: a local plan that finds no way to the next vertex (a closed door, an obstacle
-the map lacks) removes that edge for the rest of the trial and plans again over the graph, as does
-falling back off the path twice before the same edge (``fallbacks_to_remove``); no path over the
-graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge being
-followed, and a second time fails with ``stuck``.
+the map lacks) removes that edge for the rest of the trial and plans again over the graph; no path
+over the graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge
+being followed, and a second time fails with ``stuck``.
 """
 
 from __future__ import annotations
@@ -85,9 +84,6 @@ class NavigationConfig(BaseModel):
     block_check_distance: float = Field(4.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block the path")
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
-    fallbacks_to_remove: int = Field(
-        2, ge=1, description="times the robot falls back off the path before the same edge (still ahead) before that edge goes"
-    )
 
 
 @dataclass
@@ -307,8 +303,6 @@ class Navigator:
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
     _progress: tuple[float, NDArray[np.float64]] | None = None
     _stuck_once: bool = False
-    _suspect: tuple[int, int] | None = None  # the edge the robot last fell back from, not yet passed
-    _fallbacks: int = 0  # times it fell back since
     _explore: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (odom at start, path in that frame)
     _tentative: Hypothesis | None = None
     _explore_until: float = 0.0  # the startup odometer reading where the current exploring move ends
@@ -331,7 +325,6 @@ class Navigator:
                 "reached_by_composition",
                 "reached_short",
                 "explore_moves",
-                "fallback_removals",
             ],
             0,
         )
@@ -347,7 +340,6 @@ class Navigator:
         self._obstacle_vertex = None
         self._progress = None
         self._stuck_once = False
-        self._suspect, self._fallbacks = None, 0
         self._explore = None
         self._tentative = None
         self._explore_until = 0.0
@@ -379,11 +371,10 @@ class Navigator:
             return Command()
         if not self.localized:
             return self._step_unlocalized(obs)
-        before, route = self.maintainer.current, self._route
-        event = self.maintainer.update(obs.points, obs.odom, obs.stamp, route=route, force=self._at_path_end())
+        before = self.maintainer.current
+        event = self.maintainer.update(obs.points, obs.odom, obs.stamp, route=self._route, force=self._at_path_end())
         if self.maintainer.current != before or event == "localized":
             self._path_vertex = None  # a new frame: plan again
-            self._left_path(before, self.maintainer.current, route)
         return self._drive(obs, self.maintainer.current, self.maintainer.pose_in_current)
 
     def _step_unlocalized(self, obs: Observation) -> Command:
@@ -633,28 +624,6 @@ class Navigator:
 
     def _recent_obstacles(self) -> NDArray[np.float64]:
         return self.obstacles.points
-
-    def _left_path(self, before: int | None, after: int | None, route: list[int] | None) -> None:
-        """Falling back: the robot moved from ``before`` off its path (back where the path came from,
-        or aside), so the way to the path's next vertex did not work; that edge is suspect until the
-        robot gets past it. Falling back again — from there, or further back while the suspect edge
-        is still ahead on the path — the suspect edge goes (as a failed transition does in the
-        paper): without this the robot went back and forth between two locations while it kept
-        moving, so the stuck check never fired (loop_office_door, precise)."""
-        if before is None or after is None or not route or len(route) < 2 or route[0] != before:
-            return
-        if after in route[1:]:  # on along the path: past the suspect edge?
-            if self._suspect is not None and self._suspect[1] in route[1 : route.index(after) + 1]:
-                self._suspect, self._fallbacks = None, 0
-            return
-        if self._suspect is None or self._suspect[0] not in route:
-            self._suspect, self._fallbacks = (before, route[1]), 0
-        self._fallbacks += 1
-        if self._fallbacks >= self.config.fallbacks_to_remove:
-            self.counters["edges_removed"] += 1
-            self.counters["fallback_removals"] += 1
-            self.global_planner.remove_edge(*self._suspect)
-            self._suspect, self._fallbacks = None, 0
 
     def _stuck(self, obs: Observation, pose: NDArray) -> bool:
         """No progress for ``stuck_time``: remove the edge being followed and replan; twice: fail."""

@@ -191,33 +191,3 @@ def test_a_goal_estimated_into_a_wall_is_approached_never_driven_into():
     free_goal = np.array([1.5, 0.4])
     reached = planner.plan(union, np.zeros(3), free_goal)
     assert reached is not None and np.array_equal(reached.points[-1], free_goal)
-
-
-def test_falling_back_twice_before_an_edge_removes_that_edge_and_no_other():
-    """A corridor 0-1-2-3 with a way round 0-4-3, the goal at 3. Falling back once keeps the edge
-    (a corner cut); falling back from 2 (toward 3) and then from 1 (the edge 2-3 still ahead) removes
-    2-3, not 1-2, and the path goes round; getting past a suspect edge forgives it."""
-    from types import SimpleNamespace
-
-    from navtopo.navigation import NavigationConfig, Navigator
-
-    poses = [[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [10.0, 0.0, 0.0], [15.0, 0.0, 0.0], [7.5, 8.0, 0.0]]
-    graph = _graph(poses, [(0, 1), (1, 2), (2, 3), (0, 4), (4, 3)])
-
-    def navigator():
-        planner = GlobalPlanner(graph)
-        planner.set_goal(3)
-        counters = {"edges_removed": 0, "fallback_removals": 0}
-        return SimpleNamespace(config=NavigationConfig(), counters=counters, _suspect=None, _fallbacks=0, global_planner=planner)
-
-    nav = navigator()
-    Navigator._left_path(nav, 2, 1, [2, 3])  # fell back from 2: 2-3 suspect
-    assert nav.counters["edges_removed"] == 0 and nav.global_planner.path(2) == [2, 3]
-    Navigator._left_path(nav, 1, 0, [1, 2, 3])  # and further back, 2-3 still ahead
-    assert nav.global_planner.removed == {frozenset((2, 3))} and nav.global_planner.path(1) == [1, 0, 4, 3]
-
-    nav = navigator()
-    Navigator._left_path(nav, 2, 1, [2, 3])  # a corner cut ...
-    Navigator._left_path(nav, 2, 3, [2, 3])  # ... then on past the edge: forgiven
-    Navigator._left_path(nav, 1, 0, [1, 2, 3])
-    assert nav.counters["edges_removed"] == 0 and nav._suspect == (1, 2)
