@@ -505,6 +505,11 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
     return np.array([x, y, yaw])
 
 
+def _field(reference: PreparedGrid) -> tuple:
+    """The reference's distance field and its crop's placement, as the field functions take them."""
+    return reference.distance, reference.row0, reference.col0, reference.half, reference.resolution
+
+
 def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
     """The pose's covariance (3 x 3; x, y in m², yaw in rad²) from the distance-field fit at it: the
     inverse information times the residuals' variance (at least a quarter cell's). Few walls in
@@ -512,18 +517,7 @@ def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, co
     fixed: the matches whose rotation is off by a degree are the ones this calls uncertain
     (BENCHMARKS.md, "Edge measurements")."""
     pose = np.asarray(pose, dtype=np.float64)
-    h, _, squares, used = _field_normal_equations(
-        query.occupied_xy,
-        pose[0],
-        pose[1],
-        pose[2],
-        reference.distance,
-        reference.row0,
-        reference.col0,
-        reference.half,
-        reference.resolution,
-        config.field_cutoff,
-    )
+    h, _, squares, used = _field_normal_equations(query.occupied_xy, *pose, *_field(reference), config.field_cutoff)
     if used <= 3:
         return np.diag([1.0, 1.0, 1.0])  # nothing fixes the pose: a metre and a radian
     variance = max(squares / (used - 3), (0.25 * reference.resolution) ** 2)
@@ -552,17 +546,7 @@ def refine(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config
         config.icp_iterations,
     )
     if config.field_iterations:
-        refined = _field_fit(
-            query.occupied_xy,
-            refined,
-            reference.distance,
-            reference.row0,
-            reference.col0,
-            reference.half,
-            reference.resolution,
-            config.field_cutoff,
-            config.field_iterations,
-        )
+        refined = _field_fit(query.occupied_xy, refined, *_field(reference), config.field_cutoff, config.field_iterations)
     refined[2] = wrap_angle(refined[2])
     return refined
 

@@ -332,16 +332,21 @@ def wait_for(predicate, timeout: float) -> bool:
     return False
 
 
+def write_slow_job(folder) -> None:
+    """``slow_job.job(marker)``: writes the marker, then sleeps a minute before its one message."""
+    (folder / "slow_job.py").write_text(
+        "import time\nfrom pathlib import Path\n\n\n"
+        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n    yield {}\n"
+    )
+
+
 def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
     import signal
     import subprocess
     import sys
     import time
 
-    (tmp_path / "slow_job.py").write_text(
-        "import time\nfrom pathlib import Path\n\n\n"
-        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n    yield {}\n"
-    )
+    write_slow_job(tmp_path)
     driver = (
         "import sys\n"
         f"sys.path.insert(0, {str(tmp_path)!r})\n"
@@ -378,10 +383,7 @@ def test_a_second_ctrl_c_does_not_cut_the_cleanup_short(tmp_path):
     import subprocess
     import sys
 
-    (tmp_path / "slow_job.py").write_text(
-        "import time\nfrom pathlib import Path\n\n\n"
-        "def job(marker):\n    Path(marker).write_text('started')\n    time.sleep(60)\n    yield {}\n"
-    )
+    write_slow_job(tmp_path)
     driver = (
         "import sys, time\n"
         "from pathlib import Path\n"
