@@ -376,10 +376,7 @@ class GraphMaintainer:
         self.counters.matches += 1
         if at_u is None:
             return
-        measured, covariance = compose_with_covariance(
-            at_u.pose, self._located_covariance(at_u), *inverse_with_covariance(at_v.pose, self._located_covariance(at_v))
-        )
-        self._measure_edge(u, v, measured, covariance)
+        self._measure_edge(u, v, *self._through(at_u.pose, self._located_covariance(at_u), at_v))
 
     def _measure_neighbour(self, query: PreparedGrid) -> None:
         """Mapping, inside a location whose neighbour's centre is about as near as its own (within a
@@ -410,10 +407,7 @@ class GraphMaintainer:
             return
         if self._claims_seen_only and not self._sees(vertex, located.pose):
             return
-        measured, covariance = compose_with_covariance(
-            here, self.pose_covariance, *inverse_with_covariance(located.pose, located.result.covariance)
-        )
-        self._measure_edge(self.current, vertex, measured, covariance)
+        self._measure_edge(self.current, vertex, *self._through(here, self.pose_covariance, located))
 
     def _localize(self, query: PreparedGrid, points: NDArray[np.float32], odom: NDArray[np.float64]) -> bool:
         if len(self.graph) == 0:
@@ -447,10 +441,7 @@ class GraphMaintainer:
                 self._switch(located.vertex, located.pose, covariance)
                 self.last_verified = True
                 return True
-            # the located vertex's centre in the current frame, through the robot
-            pose_cu, covariance_cu = compose_with_covariance(
-                self.pose_in_current, self.pose_covariance, *inverse_with_covariance(located.pose, covariance)
-            )
+            pose_cu, covariance_cu = self._through(self.pose_in_current, self.pose_covariance, located)
             if self.mapping and not self._edge_acceptable(self.current, located.vertex, pose_cu):
                 continue
             if self.mapping and not self.graph.has_edge(self.current, located.vertex):
@@ -492,12 +483,26 @@ class GraphMaintainer:
             return self.pose_covariance.copy()
         return covariance
 
+    def _through(
+        self, robot: NDArray[np.float64], robot_covariance: NDArray[np.float64], located: Localized
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The located vertex's centre in the frame the robot's pose ``robot`` is given in (one
+        scan matched against both), and its covariance: an edge's measurement."""
+        return compose_with_covariance(
+            robot, robot_covariance, *inverse_with_covariance(located.pose, self._located_covariance(located))
+        )
+
+    @staticmethod
+    def _canonical(u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64]) -> tuple:
+        """(u, v, T_uv, covariance) with u < v, as edges are kept."""
+        if u < v:
+            return u, v, pose_uv, covariance
+        return v, u, *inverse_with_covariance(pose_uv, covariance)
+
     def _measure_edge(self, u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64]) -> bool:
         """Fuse a measurement of the existing edge (u, v) into it; refused (False) when it disagrees
         with the edge by more than ``edge_tolerance`` or 5°, or the edge has all the measurements it takes."""
-        if u > v:
-            pose_uv, covariance = inverse_with_covariance(pose_uv, covariance)
-            u, v = v, u
+        u, v, pose_uv, covariance = self._canonical(u, v, pose_uv, covariance)
         estimate = self._edges.get((u, v))
         if estimate is None:  # an edge of a loaded graph: its stored pose counts as one measurement
             estimate = self._edges[(u, v)] = EdgeEstimate.first(self.graph.edge(u, v), covariance)
@@ -512,9 +517,7 @@ class GraphMaintainer:
         return True
 
     def _new_edge(self, u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64]) -> None:
-        if u > v:
-            pose_uv, covariance = inverse_with_covariance(pose_uv, covariance)
-            u, v = v, u
+        u, v, pose_uv, covariance = self._canonical(u, v, pose_uv, covariance)
         self._edges[(u, v)] = EdgeEstimate.first(pose_uv, covariance)
         self.graph.add_edge(u, v, pose_uv)
 
