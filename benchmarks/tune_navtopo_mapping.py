@@ -1,6 +1,6 @@
 """NavTopo's mapping on generated scenes, replayed from recorded drives: edge errors against the
 truth, locations made in the route's second half (and how many of those at places already
-visited), the maintainer's counters, for candidate configs.
+visited), locations left unjoined though close in the open, the maintainer's counters, for candidate configs.
 
 Each (scene, setting) mapping drive is simulated once (``_tuning.record_drive``, as
 ``runners.mapping`` drives it) and cached under ``--cache``; each candidate replays it through
@@ -27,7 +27,7 @@ from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
 from navtopo import geometry as se2
 from navtopo.graph_poses import relaxed_poses
 from navtopo.system import NavTopo, NavTopoConfig
-from runners.mapping import revisited_late
+from runners.mapping import revisited_late, unjoined_locations
 from runners.metrics import each_edge_error
 from runners.systems import SystemContext
 
@@ -72,6 +72,7 @@ def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any
         "second_half": late,
         "second_half_share": round(late / max(len(stamps), 1), 4),
         "second_half_revisited": revisited_late(stamps, true, travelled, half),
+        "unjoined_neighbours": len(unjoined_locations(scenario, stamps, stats["edges_stamped"], true)),
         "counters": stats["counters"],
         "seconds": round(seconds, 1),
     }

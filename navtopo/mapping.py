@@ -17,6 +17,10 @@ it, ``pose_in_current``, integrated from odometry. Then, in the paper's order:
    if it passes the checks below — a loop closure when the graph's way round is much longer;
 4. else add a new location at the robot's pose, with an edge from the current one.
 
+Mapping, inside a location, loops also close without leaving it (``_close_from_inside``): a
+location passed alongside, near by odometry hint and joined only the long way round, gets an edge
+once matches over motion agree on it.
+
 Edges are measured again and again while mapping: each time one scan matches both ends (moving
 along the edge, and inside a location with a neighbour's centre about as near as its own), and
 the edge keeps the information-weighted mean of its measurements, each weighted by the
@@ -84,6 +88,24 @@ class MappingConfig(BaseModel):
     edge_measurements: int = Field(
         20, ge=1, description="measurements of an edge fused into it at most (information-weighted mean)"
     )
+    closure_radius: float | None = Field(
+        2.5,
+        gt=0,
+        description="mapping, inside a location: a location whose odometry hint lies within this (m, plus the "
+        "drift the odometry between them explains) and that the graph joins only the long way round is matched "
+        "too; agreeing matches over motion make the edge (a corridor driven alongside a location without leaving "
+        "the current one). None: loops close only where the robot leaves a location",
+    )
+    closure_every: float = Field(1.0, gt=0, description="... checked once per this much travel (m)")
+    closure_candidates: int = Field(2, ge=1, description="... at most this many locations, nearest by hint, per check")
+    closure_confirm_distance: float = Field(
+        0.5, gt=0, description="... two matches at least this far apart (m of travel) must agree on the edge ..."
+    )
+    closure_agreement: float = Field(0.15, gt=0, description="... within this (m) ...")
+    closure_agreement_deg: float = Field(1.5, gt=0, description="... and this (degrees)")
+    closure_max_sigma: float = Field(
+        0.1, gt=0, description="... and each match must fix the pose to this (m, the covariance's largest axis)"
+    )
     # a prior on odometry's quality (not the benchmark's setting): how the pose's covariance grows
     # between matches, so that the pose a new location's edge starts from weighs what it is worth
     odometry_sigma_per_metre: float = Field(0.02, ge=0, description="odometry translation noise, m per m travelled")
@@ -134,6 +156,7 @@ class MappingCounters:
     odometry_only: int = 0  # navigating: no location verified, the pose kept by odometry in the last one
     edge_refinements: int = 0  # mapping: measurements of an existing edge fused into it
     stayed: int = 0  # mapping: outside the location's reach, yet its scan still matched
+    closures_from_inside: int = 0  # mapping: edges to a location passed alongside, confirmed over motion
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -171,6 +194,9 @@ class GraphMaintainer:
         self._odometer_at_vertex: dict[int, float] = {}
         self._edges: dict[tuple[int, int], EdgeEstimate] = {}
         self._odometer_at_measure: dict[tuple[int, int], float] = {}
+        self._odometer_at_closure_check = -np.inf
+        # (current, candidate) -> (T_current,candidate measured, its covariance, the odometer then)
+        self._pending_closures: dict[tuple[int, int], tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
 
     # -- odometry ----------------------------------------------------------------------------------
 
@@ -248,6 +274,7 @@ class GraphMaintainer:
                 self._correct(query)
             if self.mapping and self.last_verified:
                 self._measure_neighbour(query)
+                self._close_from_inside(query, odom)
             return "inside"
         if self.current is not None and route and len(route) > 1 and self._move_along_route(query, route[1], nearer=False):
             # out of the location's reach: the paper's next try is the path's next vertex, before any
@@ -408,6 +435,67 @@ class GraphMaintainer:
         if self._claims_seen_only and not self._sees(vertex, located.pose):
             return
         self._measure_edge(self.current, vertex, *self._through(here, self.pose_covariance, located))
+
+    def _close_from_inside(self, query: PreparedGrid, odom: NDArray[np.float64]) -> None:
+        """Mapping, inside a location, the pose just verified: a loop closure without leaving it.
+
+        A robot that drives alongside a known location while its own still holds it (a corridor
+        seen whole from the location it is in) never moves along an edge or localizes, so the two
+        stay unjoined and the graph goes the long way round. Once per ``closure_every`` metres,
+        the nearest locations by odometry hint (within ``closure_radius`` plus what drift explains)
+        that the graph joins only by a path ``loop_ratio`` times longer are matched, seeded by the
+        hint, with the strict verdict; a match that fixes the pose well is kept pending, and the
+        edge is made when a second one, at least ``closure_confirm_distance`` further on, agrees
+        with it (a match sliding along a corridor does not stay consistent over motion)."""
+        config = self.config
+        if config.closure_radius is None or self.current is None:
+            return
+        if self._odometer - self._odometer_at_closure_check < config.closure_every:
+            return
+        self._odometer_at_closure_check = self._odometer
+        robot = np.asarray(odom, dtype=np.float64)
+        drift = self.localizer.config.drift_per_metre
+        options = []
+        for vertex, travelled in self._odometer_at_vertex.items():
+            if vertex == self.current or self.graph.has_edge(self.current, vertex):
+                continue
+            guess = between(self.graph.vertices[vertex].pose_hint, robot)  # the robot in its frame, by odometry
+            distance = float(np.hypot(guess[0], guess[1]))
+            gate = config.closure_radius + drift * abs(self._odometer - travelled)
+            if distance <= gate:
+                options.append((distance, vertex, guess, gate))
+        for distance, vertex, guess, gate in sorted(options, key=lambda o: o[0])[: config.closure_candidates]:
+            path, path_length = self.graph.shortest_path(self.current, vertex)
+            if path is not None and path_length < config.loop_ratio * max(distance, 1.0):
+                continue
+            self.counters.matches += 1
+            located = self.localizer.verify(query, vertex, guess, gate, strict=True)
+            if located is None or located.result.covariance is None or located.result.overlap < self.matching.min_overlap:
+                continue
+            if self._claims_seen_only and not self._sees(vertex, located.pose):
+                continue
+            pose_cv, covariance_cv = self._through(self.pose_in_current, self.pose_covariance, located)
+            if float(np.sqrt(np.linalg.eigvalsh(covariance_cv[:2, :2])[-1])) > config.closure_max_sigma:
+                continue
+            key = (self.current, vertex)
+            pending = self._pending_closures.get(key)
+            if pending is None or self._odometer - pending[2] < config.closure_confirm_distance:
+                if pending is None:
+                    self._pending_closures[key] = (pose_cv, covariance_cv, self._odometer)
+                continue
+            step = between(pending[0], pose_cv)
+            agree = float(np.hypot(step[0], step[1])) <= config.closure_agreement and abs(step[2]) <= np.radians(
+                config.closure_agreement_deg
+            )
+            if not agree:
+                self._pending_closures[key] = (pose_cv, covariance_cv, self._odometer)  # start over from this one
+                continue
+            del self._pending_closures[key]
+            if not self._edge_acceptable(self.current, vertex, pose_cv):
+                continue
+            self._new_edge(self.current, vertex, pending[0], pending[1])
+            self._measure_edge(self.current, vertex, pose_cv, covariance_cv)
+            self.counters.closures_from_inside += 1
 
     def _localize(self, query: PreparedGrid, points: NDArray[np.float32], odom: NDArray[np.float64]) -> bool:
         if len(self.graph) == 0:

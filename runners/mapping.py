@@ -19,7 +19,7 @@ from pydantic import BaseModel
 
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.types import MEMORY_PARTS
-from runners.metrics import edge_errors, stats_ms
+from runners.metrics import edge_errors, stats_ms, unjoined_neighbours
 from runners.payload import ScenarioFiles, pack_dir
 from runners.protocol import TrialProtocol
 from runners.results import RunDir, disk_bytes, write_json
@@ -61,6 +61,18 @@ def revisited_late(
             gap = np.min(np.hypot(*(early - true_at_stamp[stamp][:2]).T))
             count += int(gap <= REVISIT_RADIUS_M)
     return count
+
+
+def unjoined_locations(
+    scenario: Scenario, vertex_stamps: list[float], stamped_edges: list, true_at_stamp: dict[float, np.ndarray]
+) -> list[tuple[int, int]]:
+    """A graph system's locations (by the true poses where they were made) that lie close together
+    with a way between them the robot fits, yet the graph joins only the long way round
+    (``metrics.unjoined_neighbours``)."""
+    index = {stamp: k for k, stamp in enumerate(vertex_stamps)}
+    positions = np.array([true_at_stamp[stamp][:2] for stamp in vertex_stamps])
+    pairs = [(index[u], index[v]) for u, v, _ in stamped_edges if u in index and v in index]
+    return unjoined_neighbours(positions, pairs, scenario.world.clearances_at, scenario.spec.robot.radius)
 
 
 def context_for(
@@ -208,6 +220,8 @@ def drive_mapping(
             if stamped_edges is not None:
                 report["edge_error"] = edge_errors(stamped_edges, true_at_stamp)
             vertex_stamps = stats.pop("vertex_stamps", None)
+            if vertex_stamps is not None and stamped_edges is not None:
+                report["unjoined_neighbours"] = len(unjoined_locations(scenario, vertex_stamps, stamped_edges, true_at_stamp))
             if vertex_stamps is not None:
                 # revisits should reuse locations: the share of vertices made in the route's second half
                 half = sim.travelled_m / 2.0

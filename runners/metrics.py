@@ -20,6 +20,7 @@ Figures that are undefined (no successes, no planning calls) are ``None`` (JSON 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -221,6 +222,48 @@ def edge_errors(edges: list[tuple[float, float, list[float]]], true_pose_at: dic
         return {"median": round(float(np.median(v)), 4) if v else None, "max": round(float(np.max(v)), 4) if v else None}
 
     return {"translation_m": two(translation), "rotation_deg": two(rotation), "count": len(translation)}
+
+
+JOIN_RADIUS_M = 6.0  # locations this close, with a way between them, should be joined directly (or nearly)
+JOIN_DETOUR = 2.0  # ... or joined by a path at most this many times their distance (+ 2 m)
+
+
+def unjoined_neighbours(
+    positions: NDArray,
+    pairs: list[tuple[int, int]],
+    clearances_at: Callable[[NDArray], NDArray],
+    clearance: float,
+    radius: float = JOIN_RADIUS_M,
+    detour: float = JOIN_DETOUR,
+) -> list[tuple[int, int]]:
+    """Pairs of locations a graph leaves unjoined: true positions (N, 2) within ``radius`` of each
+    other with a straight way between them that the robot fits through (``clearances_at`` of
+    points along it at least ``clearance``), whose shortest path over the graph's edges ``pairs``
+    (lengths between the true positions) is longer than ``detour`` times their distance plus 2 m,
+    or missing. A navigation planned over such a graph goes the long way round, or nowhere when
+    the long way is blocked."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import shortest_path
+
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 2)
+    count = len(positions)
+    if count < 2:
+        return []
+    index = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    weights = np.hypot(*(positions[index[:, 0]] - positions[index[:, 1]]).T) + 1e-9
+    graph = coo_matrix((weights, (index[:, 0], index[:, 1])), shape=(count, count)).tocsr()
+    over_graph = shortest_path(graph, directed=False)
+    out = []
+    for i in range(count):
+        for j in range(i + 1, count):
+            distance = float(np.hypot(*(positions[i] - positions[j])))
+            if distance > radius or over_graph[i, j] <= detour * distance + 2.0:
+                continue
+            steps = max(int(np.ceil(distance / 0.05)), 1)
+            line = positions[i] + np.linspace(0.0, 1.0, steps + 1)[:, None] * (positions[j] - positions[i])
+            if np.all(clearances_at(line) >= clearance):
+                out.append((i, j))
+    return out
 
 
 def trial_record(

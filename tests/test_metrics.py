@@ -18,6 +18,7 @@ from runners.metrics import (
     timeout_s,
     trajectory_length,
     trial_record,
+    unjoined_neighbours,
 )
 
 
@@ -184,3 +185,22 @@ def test_late_locations_count_as_revisits_only_where_the_first_half_had_been():
     late = [stamps[16], stamps[30]]
     assert travelled[stamps[16]] > half and np.allclose(true_at[stamps[16]][:2], [5, 0])
     assert revisited_late([0.0, *late], true_at, travelled, half) == 1
+
+
+def test_locations_close_in_the_open_but_joined_only_the_long_way_round_are_counted():
+    # a 3 m square of locations A(0,0) B(3,0) C(3,3) D(0,3), joined A-B-C-D but not D-A: A and D
+    # are 3 m apart and 9 m apart over the graph (> 2 x 3 + 2), the diagonals 4.2 and 6 (not counted)
+    square = np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 3.0], [0.0, 3.0]])
+    chain = [(0, 1), (1, 2), (2, 3)]
+
+    def open_floor(points):
+        return np.full(len(points), 1.0)
+
+    def wall_between_a_and_d(points):  # a wall across x = 0 at y = 1.5 (and nowhere else)
+        return np.where((np.abs(points[:, 1] - 1.5) < 0.1) & (np.abs(points[:, 0]) < 0.5), 0.0, 1.0)
+
+    assert unjoined_neighbours(square, chain, open_floor, clearance=0.3) == [(0, 3)]
+    assert unjoined_neighbours(square, [*chain, (3, 0)], open_floor, clearance=0.3) == []
+    assert unjoined_neighbours(square, chain, wall_between_a_and_d, clearance=0.3) == []  # no way between them
+    assert unjoined_neighbours(square, chain, open_floor, clearance=0.3, radius=2.9) == []  # farther than the radius
+    assert unjoined_neighbours(square, [(0, 1)], open_floor, clearance=0.3) == [(0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]  # apart

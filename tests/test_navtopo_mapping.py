@@ -235,3 +235,60 @@ def test_an_edge_weighs_its_measurements_by_their_covariance():
     edge.fuse(np.array([5.0, 0.0, np.radians(1.0)]), unsure)
     assert abs(np.degrees(edge.pose[2]) - 0.0025) < 1e-3 and edge.count == 2
     assert np.allclose(edge.pose[:2], [5.0, 0.0])
+
+
+def small_ring(tmp_path: Path) -> Path:
+    """A 16 x 8 m ring of 2 m corridors with niches and two boxes."""
+    spec = {
+        "format": "navtopo-scenario/1",
+        "name": "small_ring",
+        "world": {
+            "corridors": [{"points": [[0, 0], [16, 0], [16, 8], [0, 8], [0, 0]], "width": 2.0}],
+            "rooms": [
+                {"center": [4, -1.4], "size": [1.2, 0.8]},
+                {"center": [7, -1.4], "size": [0.8, 0.8]},
+                {"center": [11, 1.4], "size": [1.6, 0.8]},
+                {"center": [16, 3], "size": [2.8, 1.2]},
+                {"center": [9, 8], "size": [1.4, 2.8]},
+                {"center": [0, 5], "size": [2.6, 1.0]},
+            ],
+            "obstacles": [
+                {"center": [1.5, -0.7], "size": [0.4, 0.4], "height": 1.0},
+                {"center": [13, 0.7], "size": [0.5, 0.3], "height": 1.0},
+            ],
+        },
+        "mapping_route": {"waypoints": [[2, 0], [16, 0]]},
+        "trials": [],
+    }
+    path = tmp_path / "small_ring.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+@pytest.mark.parametrize("closure_radius", [2.5, None])
+def test_a_loop_closes_where_the_robot_passes_a_location_without_leaving_its_own(tmp_path, closure_radius):
+    # round the ring from (3, 0), then back along the bottom to 2.3 m short of the first location
+    # and away again: the last location (about 10 m along) holds the robot all that time, so it
+    # never moves along an edge or localizes; only the closure from inside joins the two
+    from runners.metrics import unjoined_neighbours
+
+    scenario = load_scenario(small_ring(tmp_path))
+    system = NavTopo.create(NavTopoConfig(descriptor="scan_context", mapping={"closure_radius": closure_radius}))
+    true_at: dict = {}
+    with Simulator(scenario) as sim:
+        sim.reset([3.0, 0.0, np.pi])
+        drive(system, sim, [[3, 0], [0, 0], [0, 8], [16, 8], [16, 0], [5.3, 0], [12, 0]], true_at)
+        assert sim.collisions == 0
+    first, last = 0, len(system.graph) - 1
+    assert np.hypot(*(true_at[system.graph.vertices[last].stamp][:2] - [3.0, 0.0])) < 8.0  # passed within 2.5 m
+    assert system.graph.has_edge(first, last) == (closure_radius is not None)
+    for u, v, pose_uv in system.graph.edges():
+        truth = se2.between(true_at[system.graph.vertices[u].stamp], true_at[system.graph.vertices[v].stamp])
+        error = se2.between(truth, pose_uv)
+        assert np.hypot(error[0], error[1]) < 0.3 and abs(np.degrees(error[2])) < 3.0
+    # the runner's measure of it (with a radius that takes in this 7 m gap)
+    positions = [true_at[v.stamp][:2] for v in system.graph.vertices]
+    pairs = [(u, v) for u, v, _ in system.graph.edges()]
+    unjoined = unjoined_neighbours(positions, pairs, scenario.world.clearances_at, scenario.spec.robot.radius, radius=8.0)
+    assert unjoined == ([] if closure_radius else [(first, last)])
+    assert system.maintainer.counters.closures_from_inside == (1 if closure_radius else 0)
