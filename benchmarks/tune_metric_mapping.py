@@ -45,7 +45,7 @@ from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
 from bench_metric_map_quality import wall_quality
 
 from baselines.metric_grid.odometry import LidarOdometry
-from baselines.metric_grid.system import NOISY_ODOMETRY, MetricGrid, MetricGridConfig
+from baselines.metric_grid.system import NOISY_ODOMETRY, PRECISE_ODOMETRY, MetricGrid, MetricGridConfig
 from navtopo import geometry as se2
 from runners.systems import SystemContext
 
@@ -67,6 +67,7 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "wheel": {},  # the default config (precise recipe)
     "wheel-noloops": NO_LOOPS,
     "wheel-s0.1": {"pose_graph": _sigmas(0.01, 0.01, 0.1, 0.1)},
+    "wheel-precise": PRECISE_ODOMETRY,  # today's precise recipe: factors as tight as exact odometry
     "lidar": LIDAR,  # kiss-icp seeded by the wheels, pose-graph default sigmas
     "lidar-s0.05": {**LIDAR, "pose_graph": _sigmas(0.01, 0.01, 0.05, 0.05)},
     "lidar-s0.1": NOISY_ODOMETRY,  # today's noisy recipe
@@ -86,6 +87,7 @@ DEFAULT_SET = (
     "wheel",
     "wheel-noloops",
     "wheel-s0.1",
+    "wheel-precise",
     "lidar",
     "lidar-measured",
     "lidar-s0.1",

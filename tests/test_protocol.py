@@ -293,4 +293,8 @@ def test_a_system_is_configured_for_the_setting_as_a_user_configures_a_robot():
     assert precise["metric_grid"]["odometry"]["source"] == "wheel"
     assert noisy["metric_grid"]["odometry"]["source"] == "lidar"  # kiss-icp for noisy wheels
     assert noisy["metric_grid"]["planning"]["replan_period"] == 3.0  # the user's own overrides still win
+    # odometry factors as tight as exact odometry, and the noisy recipe's own (not the precise ones)
+    assert precise["metric_grid"]["pose_graph"]["odometry_sigma_yaw_deg_per_m"] == 0.02
+    assert noisy["metric_grid"]["pose_graph"]["odometry_sigma_yaw_deg_per_m"] == 0.1
+    assert noisy["metric_grid"]["pose_graph"]["odometry_sigma_xy_per_m"] == 0.02
     assert precise["navtopo"] == noisy["navtopo"]  # NavTopo has no setting-specific configuration
