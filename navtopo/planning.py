@@ -57,6 +57,13 @@ class PlanningConfig(BaseModel):
     target_step: float = Field(0.2, gt=0, description="spacing of the points tried along the global path (lookahead)")
     target_clearance: float = Field(0.05, ge=0, description="a lookahead target keeps this much more than the path's margin")
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
+    unknown_detour: float = Field(
+        1.5,
+        ge=1.0,
+        description="a path found only through unknown cells (the last fallbacks) longer than this times the "
+        "straight way to its target, plus 1 m, is refused: a way no location saw, far round, is a guess (round a "
+        "shut door it led robots to and fro between two locations); the transition fails instead",
+    )
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between local replans in one location")
     new_obstacle_distance: float = Field(0.25, gt=0, description="a return this far from every mapped wall is a new obstacle")
     new_obstacle_range: float = Field(6.0, gt=0, description="only nearer returns can be new obstacles")
@@ -265,15 +272,21 @@ class LocalPlanner:
         if self.config.smoothing == "none" or len(route) == 1:
             return route[0]
         # lookahead: the farthest point of the polyline robot -> route in the union grid's known free
-        # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m)
+        # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m),
+        # before the polyline first leaves that space beyond there: a route that comes back near
+        # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
         samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
         free = union.values_at(samples, union.mask("known", self.wide + self.config.target_clearance), False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
-        candidates = np.flatnonzero(free & beyond_next)
+        first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
+        leaves = np.flatnonzero(~free[first:])
+        end = first + (int(leaves[0]) if len(leaves) else len(samples) - first)
+        candidates = np.flatnonzero(free[:end] & beyond_next[:end])
         return samples[candidates[-1]] if len(candidates) else route[0]
 
     def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
-        """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked."""
+        """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
+        if there is none, or only one through unknown cells far round (``unknown_detour``)."""
         snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
         if blocked_xy is None or not len(blocked_xy):
             masks = lambda level: union.mask(*self.levels[level])  # noqa: E731 - the cached masks
@@ -288,7 +301,12 @@ class LocalPlanner:
         # a target the robot does not fit at even next to unknown space (a goal estimated into a
         # wall) is approached as near as the free space allows, never driven into
         fits = bool(union.values_at(np.asarray(target, dtype=np.float64)[None, :2], union.mask("unknown", self.tight), True)[0])
-        return plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels), exact_goal=fits)
+        planned = plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels), exact_goal=fits)
+        if planned is not None and self.levels[planned.level][0] == "unknown":
+            straight = float(np.hypot(*(np.asarray(target, dtype=np.float64)[:2] - start[:2])))
+            if planned.length > self.config.unknown_detour * straight + 1.0:
+                return None
+        return planned
 
     def new_obstacles(self, union: UnionGrid, pose: NDArray, points: NDArray) -> NDArray[np.float64]:
         """Obstacle returns (N, 2+, robot frame) near the robot that no mapped wall explains, in v_cur's frame."""

@@ -191,3 +191,54 @@ def test_a_goal_estimated_into_a_wall_is_approached_never_driven_into():
     free_goal = np.array([1.5, 0.4])
     reached = planner.plan(union, np.zeros(3), free_goal)
     assert reached is not None and np.array_equal(reached.points[-1], free_goal)
+
+
+def test_the_lookahead_target_stops_where_the_route_first_leaves_the_known_free_space():
+    """A route that goes round a loop and comes back near the robot (beyond a wall, or a shut door
+    the union grid still shows open): the target is on the route's near part, never its far end."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+
+    def cells(x0: float, x1: float, y0: float, y1: float) -> tuple[slice, slice]:
+        to = lambda v: GRID.size // 2 + int(round(v / GRID.resolution))  # noqa: E731
+        return slice(to(y0), to(y1)), slice(to(x0), to(x1))
+
+    grid[cells(-2, 6, -1, 1)] = FREE  # the lower arm, where the robot is
+    grid[cells(-2, 6, 3, 5)] = FREE  # the upper arm, 4 m away beyond a wall
+    grid[cells(-2, 6, 1, 3)] = OCCUPIED
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    planner = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(smoothing="lookahead"))
+    # round the loop through space the location never saw (x > 6), back along the upper arm
+    route = np.array([[8.0, 0.0], [8.0, 4.0], [0.0, 4.0]])
+    target = planner.target(union, np.zeros(3), route)
+    assert abs(target[1]) < 0.5 and 3.0 < target[0] < 6.0  # the lower arm's far end, not the upper arm
+
+
+def test_a_way_found_only_through_unknown_space_far_round_is_refused():
+    """Known free space cut by a new obstacle (a shut door) across the corridor: a way round
+    through cells no location saw, three times the straight way, is no transition the map knows;
+    a short step through unknown cells (a door frame's unseen corner) still is."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+    centre = GRID.size // 2
+    to = lambda v: centre + int(round(v / GRID.resolution))  # noqa: E731
+    grid[to(-1) : to(1), to(-3) : to(10)] = FREE  # a 2 m wide corridor along x
+    grid[to(-1.2) : to(-1), to(-3) : to(10)] = OCCUPIED
+    grid[to(1) : to(1.2), to(-2) : to(9)] = OCCUPIED  # gaps in its upper wall at x -3..-2 and 9..10
+    grid[to(3) : to(4), to(-3) : to(10)] = FREE  # a corridor beyond, seen in part (the grid reaches it)
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    planner = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig())
+    door = np.array([[4.0, y] for y in np.arange(-1.0, 1.0, 0.05)])  # shut across the corridor at x = 4
+    target = np.array([6.0, 0.0])
+    open_way = planner.plan(union, np.zeros(3), target)
+    assert open_way is not None and open_way.level == 0  # open: straight along
+    assert planner.plan(union, np.zeros(3), target, door) is None  # shut: only far round, unseen: refused
+    lenient = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(unknown_detour=10.0))
+    guess = lenient.plan(union, np.zeros(3), target, door)
+    assert guess is not None and guess.points[:, 1].max() > 1.2 and guess.length > 3 * 6.0  # what is refused
+    step = planner.plan(union, np.zeros(3), np.array([-2.5, 1.8]))  # just through the gap
+    assert step is not None and planner.levels[step.level][0] == "unknown"  # short: kept
