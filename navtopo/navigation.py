@@ -571,7 +571,7 @@ class Navigator:
             goal_point = transform_points(positions[-1], self.goal.pose[None])
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
             union = self.unions.get(vertex)
-            target = self.local.target(union, pose, points)
+            target = self.local.target(union, pose, points, self._recent_obstacles())
             planned = self.local.plan(union, pose, target, self._recent_obstacles())
             if planned is None and not np.allclose(target, points[0]):  # a shorter reach: the next vertex
                 target = points[0]

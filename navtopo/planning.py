@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
 
 from navtopo import grid_search
 from navtopo.geometry import compose, inverse, transform_points
@@ -266,9 +267,12 @@ class LocalPlanner:
         self.tight = robot_radius + resolution / 2
         self.levels = [("known", self.wide), ("known", self.tight), ("unknown", self.wide), ("unknown", self.tight)]
 
-    def target(self, union: UnionGrid, start: NDArray, route: NDArray[np.float64]) -> NDArray[np.float64]:
+    def target(
+        self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None = None
+    ) -> NDArray[np.float64]:
         """Where the local path goes (v_cur's frame). ``route`` (K, 2): the global path's points
-        after the robot: the next vertices' positions and, last, the goal."""
+        after the robot: the next vertices' positions and, last, the goal. ``blocked_xy``: new
+        obstacles (a shut door the grids show open), where the route leaves the free space too."""
         if self.config.smoothing == "none" or len(route) == 1:
             return route[0]
         # lookahead: the farthest point of the polyline robot -> route in the union grid's known free
@@ -276,7 +280,10 @@ class LocalPlanner:
         # before the polyline first leaves that space beyond there: a route that comes back near
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
         samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
-        free = union.values_at(samples, union.mask("known", self.wide + self.config.target_clearance), False)
+        reach = self.wide + self.config.target_clearance
+        free = union.values_at(samples, union.mask("known", reach), False)
+        if blocked_xy is not None and len(blocked_xy):
+            free &= distance_to_points(samples, np.asarray(blocked_xy, dtype=np.float64)[:, :2]) > reach
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
         leaves = np.flatnonzero(~free[first:])
@@ -316,6 +323,11 @@ class LocalPlanner:
         xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
         far = union.values_at(xy, union.wall_distance, np.float32(np.inf)) > self.config.new_obstacle_distance
         return xy[far]
+
+
+def distance_to_points(xy: NDArray, points: NDArray) -> NDArray[np.float64]:
+    """(N,) distance from each of ``xy`` (N, 2) to the nearest of ``points`` (M, 2), M >= 1."""
+    return cKDTree(points).query(xy)[0].astype(np.float64)
 
 
 def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:

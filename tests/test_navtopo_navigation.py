@@ -214,6 +214,10 @@ def test_the_lookahead_target_stops_where_the_route_first_leaves_the_known_free_
     route = np.array([[8.0, 0.0], [8.0, 4.0], [0.0, 4.0]])
     target = planner.target(union, np.zeros(3), route)
     assert abs(target[1]) < 0.5 and 3.0 < target[0] < 6.0  # the lower arm's far end, not the upper arm
+    # a door shut across the lower arm at x = 2.5 (the grid still shows it open): the target stops before it
+    door = np.array([[2.5, y] for y in np.arange(-1.0, 1.0, 0.05)])
+    before = planner.target(union, np.zeros(3), route, door)
+    assert abs(before[1]) < 0.5 and 1.0 <= before[0] < 2.5 - 0.3
 
 
 def test_a_way_found_only_through_unknown_space_far_round_is_refused():
