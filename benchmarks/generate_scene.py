@@ -30,6 +30,9 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=201)
     parser.add_argument("--rings", type=int, default=2, choices=[1, 2], help="ring: one ring, or two sharing a corridor")
     parser.add_argument("--repeated-rooms", type=int, default=0, help="ring: identical rooms side by side")
+    parser.add_argument(
+        "--door-width", default="0.9,1.0", help="ring: MIN,MAX width of the rooms' doors (m); the robot is 0.6 m wide"
+    )
     parser.add_argument("--trials", type=int, default=20)
     parser.add_argument("-o", "--output", type=Path, required=True)
     args = parser.parse_args()
@@ -40,6 +43,14 @@ def main() -> int:
     if args.length <= 0:
         print("generate_scene: --length must be positive", file=sys.stderr)
         return 2
+    try:
+        low, high = (float(v) for v in args.door_width.split(","))
+    except ValueError:
+        print(f"generate_scene: --door-width {args.door_width!r} is not MIN,MAX", file=sys.stderr)
+        return 2
+    if not 0.6 < low <= high:
+        print("generate_scene: --door-width needs 0.6 < MIN <= MAX (the robot is 0.6 m wide)", file=sys.stderr)
+        return 2
     if args.kind == "tree":
         spec = generators.corridor_tree(args.length, seed=args.seed, trials=args.trials)
     else:
@@ -48,6 +59,7 @@ def main() -> int:
             seed=args.seed,
             rings=args.rings,
             repeated_rooms=args.repeated_rooms,
+            door_width=(low, high),
             trials=args.trials,
             name=f"ring{args.seed}",
         )
