@@ -19,11 +19,13 @@ from typer.testing import CliRunner
 
 from navtopo import geometry as se2
 from runners.cli import app
+from runners.executors import LocalExecutor
 from runners.results import RunDir
 from scenarios import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
-TIMING = {"compute_s", "planning_ms", "planning_ms_samples", "first_plan_ms", "memory"}
+# facts of the execution, not of the outcome: timings, memory figures, where the trial ran
+TIMING = {"compute_s", "planning_ms", "planning_ms_samples", "first_plan_ms", "memory", "worker"}
 HAS_RAY = __import__("importlib.util").util.find_spec("ray") is not None
 
 
@@ -151,6 +153,63 @@ def test_one_worker_two_workers_and_ray_give_identical_trials_maps_and_trajector
     if not HAS_RAY:
         pytest.skip("Ray is not installed (pip install -e '.[ray]'): compared --workers 1 and 2 only")
     _assert_same_outcomes(one, _run_tiny(tmp_path / "ray", "--executor", "ray", "--workers", "2"))
+
+
+class RecordingExecutor(LocalExecutor):
+    """The local executor, noting when each job starts and ends: (event, kind, seed, time)."""
+
+    opened: list[RecordingExecutor] = []
+
+    def __init__(self, slots: int | None = None) -> None:
+        super().__init__(slots)
+        self.log: list[tuple[str, str, int, float]] = []
+        RecordingExecutor.opened.append(self)
+
+    def _start(self, run) -> None:
+        self.log.append(("start", type(run.job).__name__, run.job.seed, time.monotonic()))
+        super()._start(run)
+
+    def _put(self, run, kind: str, payload) -> None:  # from the thread that reads the job's pipe
+        if kind == "end":
+            self.log.append(("end", type(run.job).__name__, run.job.seed, time.monotonic()))
+        super()._put(run, kind, payload)
+
+
+def _run_two_seeds(results: Path, workers: int, monkeypatch) -> RecordingExecutor:
+    import runners.executors
+
+    RecordingExecutor.opened = []
+    monkeypatch.setattr(runners.executors, "LocalExecutor", RecordingExecutor)
+    args = ["run", "tiny", "--seeds", "1,2", "--systems", "oracle,metric_grid", "--trials", "1", "--workers", str(workers)]
+    result = CliRunner().invoke(app, [*args, "--results", str(results)])
+    assert result.exit_code == 0, result.output
+    assert len(RecordingExecutor.opened) == 1, "one executor for the runs of one command"
+    return RecordingExecutor.opened[0]
+
+
+def _span(log, seed: int, kind: str | None = None) -> tuple[float, float]:
+    """When the first job of ``seed`` (of that kind) started and its last ended."""
+    times = [(event, t) for event, k, s, t in log if s == seed and kind in (None, k)]
+    return min(t for e, t in times if e == "start"), max(t for e, t in times if e == "end")
+
+
+def test_the_runs_of_one_command_overlap_on_one_executor_and_give_the_sequential_outcomes(tmp_path, monkeypatch):
+    """`run tiny --seeds 1,2 --workers 2`: seed 2's jobs start while seed 1's still run, each run's
+    navigation starts once its own maps are in, and the outcomes are those of the runs one after
+    another (--workers 1: with one slot, every job of the first run goes before the second's)."""
+    together = _run_two_seeds(tmp_path / "together", 2, monkeypatch).log
+    assert len([e for e in together if e[0] == "end"]) == len([e for e in together if e[0] == "start"])
+    assert _span(together, 2)[0] < _span(together, 1)[1], "seed 2 waited for seed 1 to end"
+    for seed in (1, 2):
+        assert _span(together, seed, "MappingJob")[1] <= _span(together, seed, "TrialJob")[0]
+    one_by_one = _run_two_seeds(tmp_path / "one_by_one", 1, monkeypatch).log
+    assert _span(one_by_one, 1)[1] <= _span(one_by_one, 2)[0]
+    for seed in (1, 2):
+        [a] = (tmp_path / "together" / "tiny").glob(f"*-s{seed}")
+        [b] = (tmp_path / "one_by_one" / "tiny").glob(f"*-s{seed}")
+        assert sorted(p.relative_to(a) for p in a.rglob("*")) == sorted(p.relative_to(b) for p in b.rglob("*"))
+        _assert_same_outcomes(a, b)
+        assert json.loads((a / "summary.json").read_text()).keys() == {"oracle", "metric_grid"}
 
 
 @pytest.mark.ray
