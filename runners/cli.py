@@ -172,11 +172,18 @@ def run(
         Path | None,
         typer.Option(help="reuse the maps of an earlier run (same scenario, seed, setting): navigation trials only"),
     ] = None,
+    suite: Annotated[
+        Path | None,
+        typer.Option(
+            help="a suite file listing the runs (scenarios, seeds, settings, systems, trials; docs/DESIGN.md): "
+            "a folder per run under --out (default <results>/<suite name>); the same command again finishes them"
+        ),
+    ] = None,
 ) -> None:
     """Map each scenario's route with every system, then run the navigation trials.
 
-    Several scenarios, seeds or settings make one run each, all on one executor with their jobs
-    in flight together.
+    Several scenarios, seeds or settings (or a --suite file) make one run each, all on one
+    executor with their jobs in flight together.
 
     The protocol is the same for every system (docs/DESIGN.md): systems that take an initial pose
     get the trial's start with a seeded error (--initial-pose-error), and every system that
@@ -238,6 +245,25 @@ def run(
         "protocol": protocol,
         **limits,
     }
+    if suite is not None:
+        given = [
+            flag
+            for flag, value in (
+                ("SCENARIO", bool(scenarios)),
+                ("--systems", systems != "navtopo,metric_grid,oracle"),
+                ("--trials", trials is not None),
+                ("--seed", seed is not None),
+                ("--seeds", seeds is not None),
+                ("--setting", setting is not None),
+                ("--resume", resume is not None),
+                ("--maps-from", maps_from is not None),
+            )
+            if value
+        ]
+        if given:
+            fail(f"--suite {suite}: {', '.join(given)}: the suite file lists the runs; give these there, not here")
+        _run_suite(suite, out if out is not None else results / suite.stem, config_file, common)
+        return
     if resume is not None:
         if not (resume / "manifest.json").is_file():
             fail(f"{resume}: not a run folder (manifest.json missing)")
@@ -323,6 +349,50 @@ def run(
     ]
     with _executor(todo[0][1]) as pool:
         _run_all(todo, pool)
+
+
+def _run_suite(path: Path, out: Path, config_file: Path | None, common: dict) -> None:
+    """The runs of a suite file, each in its folder under ``out``: a finished one kept, a started
+    one resumed (the same command again finishes the suite), the others made; all on one executor."""
+    from runners.run import RunOptions, in_folder, scenario_fingerprint
+    from runners.suite import read_suite
+    from runners.systems import system_names
+    from scenarios import ScenarioError
+
+    try:
+        runs = read_suite(path)
+    except ScenarioError as exc:  # SuiteError, or the file's YAML
+        fail(str(exc))
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out}: is a file, not a folder")
+    if (out / "manifest.json").exists():
+        fail(f"--out {out}: holds a run, not the runs of a suite; give another --out")
+    writable_dir(out, "--out")
+    names = sorted({name for run in runs for name in run.systems})
+    overrides = _read_overrides(config_file, names) if config_file is not None else None
+    todo = []
+    for run in runs:
+        options = RunOptions(
+            systems=run.systems,
+            trials=run.trials,
+            seed=run.seed,
+            setting=run.setting,
+            config_overrides=overrides,
+            **common,
+        )
+        kept = in_folder(out / run.folder, options)
+        if kept is None:
+            note(f"{out / run.folder}: finished before; kept")
+            continue
+        if kept.resume is not None and _read_manifest(kept.resume, system_names()).get("scenario_sha256") not in (
+            None,
+            scenario_fingerprint(run.scenario),
+        ):
+            fail(f"{run.scenario.path}: changed since {kept.resume} started (sha256 differs from its manifest.json)")
+        todo.append((run.scenario, kept))
+    if todo:
+        with _executor(todo[0][1]) as pool:
+            _run_all(todo, pool, again=f"run the same command again to finish the suite in {out}")
 
 
 def _check_executor(executor: str, ray_address: str | None) -> None:
