@@ -3,11 +3,15 @@ killed driver (issue 13). The runs use `tiny`, or a copy of it with a short mapp
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
+import select
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -51,6 +55,11 @@ def records_of(run: Path) -> dict[tuple[str, int], dict]:
     keys = [(r["system"], r["trial"]) for r in records]
     assert len(keys) == len(set(keys)), f"a trial recorded twice in {run}"
     return {(r["system"], r["trial"]): r for r in records}
+
+
+def is_loopback(address: str) -> bool:
+    ip = ipaddress.ip_address(address)
+    return (getattr(ip, "ipv4_mapped", None) or ip).is_loopback  # '::ffff:127.0.0.1' too
 
 
 def without_timing(record: dict) -> dict:
@@ -122,9 +131,10 @@ def test_a_mapping_job_that_kills_its_worker_fails_that_system_only(tmp_path):
 # determinism
 
 
-def _run_tiny(out: Path, *flags: str) -> Path:
+def _run_tiny(out: Path, *flags: str, env: dict[str, str] | None = None) -> Path:
     command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle,metric_grid", "--out", str(out), *flags]
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    environment = {**os.environ, **(env or {})}
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=environment)
     assert done.returncode == 0, done.stderr[-2000:]
     return out
 
@@ -210,6 +220,58 @@ def test_the_runs_of_one_command_overlap_on_one_executor_and_give_the_sequential
         assert sorted(p.relative_to(a) for p in a.rglob("*")) == sorted(p.relative_to(b) for p in b.rglob("*"))
         _assert_same_outcomes(a, b)
         assert json.loads((a / "summary.json").read_text()).keys() == {"oracle", "metric_grid"}
+
+
+@pytest.mark.ray
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_RAY, reason="Ray is not installed (pip install -e '.[ray]')")
+def test_a_two_node_ray_cluster_on_loopback_gives_the_outcomes_of_one_worker_and_uses_both_nodes(tmp_path):
+    """A head and a second node of one CPU each on 127.0.0.1 (``tests/ray_cluster.py``, each node its
+    own raylet); the driver joins it with --ray-address. The trials ran on both nodes, the outcomes
+    are those of --workers 1, every socket of the cluster's processes is on loopback, and none of
+    its processes outlives the test."""
+    import psutil
+
+    temp_dir = tempfile.mkdtemp(prefix="ntb-ray-")  # short: Ray's socket paths must fit 107 bytes
+    helper = subprocess.Popen(
+        [sys.executable, str(ROOT / "tests" / "ray_cluster.py"), temp_dir, "2"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    processes: list[psutil.Process] = []
+    try:
+        ready, _, _ = select.select([helper.stdout], [], [], 120)
+        assert ready, "the cluster did not start within 120 s"
+        cluster = json.loads(helper.stdout.readline())
+        assert cluster["nodes"] == ["127.0.0.1", "127.0.0.1"] and cluster["address"].startswith("127.0.0.1:")
+        on_ray = _run_tiny(
+            tmp_path / "cluster",
+            *("--executor", "ray", "--ray-address", cluster["address"], "--trials", "2"),
+            env={"RAY_TMPDIR": temp_dir},
+        )
+        processes = psutil.Process(helper.pid).children(recursive=True)  # GCS, raylets, agents, workers
+        addresses = {
+            address.ip
+            for process in processes
+            for connection in process.net_connections(kind="inet")
+            for address in (connection.laddr, connection.raddr)
+            if address
+        }
+        assert addresses and all(is_loopback(a) for a in addresses), f"the cluster's processes use {addresses}"
+    finally:
+        helper.stdin.close()  # the helper shuts its nodes down
+        try:
+            helper.wait(timeout=60)
+        finally:
+            helper.kill()
+            shutil.rmtree(temp_dir, ignore_errors=True)
+    _, alive = psutil.wait_procs(processes, timeout=10)
+    assert not alive, f"processes of the test cluster still run: {alive}"
+    _assert_same_outcomes(on_ray, _run_tiny(tmp_path / "w1", "--workers", "1", "--trials", "2"))
+    nodes = {r["worker"]["node"] for r in records_of(on_ray).values()}
+    assert len(nodes) == 2 and None not in nodes, f"the trials ran on {nodes}, not on both nodes"
 
 
 @pytest.mark.ray
