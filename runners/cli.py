@@ -537,9 +537,8 @@ class _RunProgress:
 
 
 def _run_all(todo: list, pool, again: str | None = None) -> None:
-    """Every (scenario, options) on ``pool``, their jobs in flight together, with a bar for the
-    jobs of all runs (done, running, failed); then each run's summary, in order. A run that failed
-    is one error line (its traceback in ``<run>/logs/error.log``) once every run has ended, exit 1;
+    """Every (scenario, options) on ``pool``, their jobs in flight together, with a bar per run and
+    stage and one for the jobs of all runs (done, running, failed); then ``_report_outcomes``.
     Ctrl-C exits 130 saying how to finish (``again``, else the --resume of each unfinished run)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
@@ -565,16 +564,23 @@ def _run_all(todo: list, pool, again: str | None = None) -> None:
         try:
             outcomes = execute_runs(plans, pool, on_jobs)
         except KeyboardInterrupt:
-            unfinished = [run.folder for run in shown if run.folder is not None and not (run.folder / "summary.json").is_file()]
             if again is not None:
                 fail(f"interrupted; {again}", code=130)
+            unfinished = [run.folder for run in shown if run.folder is not None and not (run.folder / "summary.json").is_file()]
             how = ", ".join(f"--resume {folder}" for folder in unfinished)
             fail(
                 f"interrupted; finish the run{'s' if len(unfinished) > 1 else ''} with {how}" if how else "interrupted", code=130
             )
+    _report_outcomes(shown, outcomes)
+
+
+def _report_outcomes(shown: list[_RunProgress], outcomes: list) -> None:
+    """Each run's summary and warnings, in order; then an error line per failed run, exit 1."""
+    from runners.results import read_json
+
     failures = []
     for run, outcome in zip(shown, outcomes, strict=True):
-        if outcome.error is not None:
+        if outcome.error is not None:  # its traceback goes to <run>/logs/error.log
             exc = outcome.error
             message = f"run of {run.label} failed: {type(exc).__name__}: {exc}"
             if run.folder is not None:
@@ -589,8 +595,6 @@ def _run_all(todo: list, pool, again: str | None = None) -> None:
             why = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
             failures.append(f"navigation stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
             continue
-        from runners.results import read_json
-
         if read_json(run_dir.manifest_path).get("trial_count") == 0:
             console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
         else:

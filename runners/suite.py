@@ -82,6 +82,7 @@ def read_suite(path: Path) -> list[SuiteRun]:
     known = system_names()
     runs: list[SuiteRun] = []
     taken: dict[Path, int] = {}
+    loaded: dict[str, Scenario] = {}  # a scenario named by several entries is loaded once
     for number, entry in enumerate(spec.runs):
         systems_key = f"runs.{number}.systems" if entry.systems is not None else "systems"
         systems = list(entry.systems or spec.systems or DEFAULT_SYSTEMS)
@@ -95,7 +96,9 @@ def read_suite(path: Path) -> list[SuiteRun]:
             )
         trials = entry.trials if entry.trials is not None else spec.trials
         for k, name in enumerate(entry.scenarios):
-            scenario = _load(path, f"runs.{number}.scenarios.{k}", name)
+            if name not in loaded:
+                loaded[name] = _load(path, f"runs.{number}.scenarios.{k}", name)
+            scenario = loaded[name]
             for setting in entry.settings or [None]:
                 for seed in entry.seeds or [scenario.spec.seed]:
                     folder = Path(scenario.name) / (f"s{seed}" + (f"-{setting}" if setting else ""))

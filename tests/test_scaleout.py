@@ -19,6 +19,7 @@ import faulty_system  # noqa: F401 - registers the "faulty" system in this proce
 import numpy as np
 import pytest
 import yaml
+from test_robustness import ctrl_c, wait_for
 from typer.testing import CliRunner
 
 from navtopo import geometry as se2
@@ -220,6 +221,41 @@ def test_the_runs_of_one_command_overlap_on_one_executor_and_give_the_sequential
         assert sorted(p.relative_to(a) for p in a.rglob("*")) == sorted(p.relative_to(b) for p in b.rglob("*"))
         _assert_same_outcomes(a, b)
         assert json.loads((a / "summary.json").read_text()).keys() == {"oracle", "metric_grid"}
+
+
+def test_ctrl_c_during_several_runs_exits_130_naming_each_unfinished_run_and_each_resumes(tmp_path):
+    """Two seeds in flight together; Ctrl-C once a trial is recorded: every job ends, exit 130 in
+    seconds, the one error line names the --resume of each unfinished folder, and each resumes with
+    no trial lost or twice."""
+    path = short_tiny(tmp_path)
+    results = tmp_path / "results"
+    command = [sys.executable, "-m", "runners.cli", "run", str(path), "--seeds", "1,2", "--systems", "oracle"]
+    process = subprocess.Popen(
+        [*command, "--trials", "3", "--workers", "2", "--results", str(results)],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        recorded = wait_for(lambda: any(p.stat().st_size for p in results.glob("tiny/*/trials.jsonl")), 300)
+        assert recorded and process.poll() is None, "no trial recorded, or the runs ended before Ctrl-C"
+        ctrl_c(process)
+    finally:
+        process.kill()
+    errors = [line for line in process.stderr.read().splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith("error: interrupted; finish the run"), errors
+    folders = sorted(p.parent for p in results.glob("tiny/*-s*/manifest.json"))
+    assert len(folders) == 2
+    unfinished = [folder for folder in folders if not (folder / "summary.json").is_file()]
+    assert unfinished and all(f"--resume {folder}" in errors[0] for folder in unfinished)
+    for folder in unfinished:
+        before = {(r["system"], r["trial"]): r for r in RunDir(folder).read_trials()}  # perhaps none yet
+        result = CliRunner().invoke(app, ["run", "--resume", str(folder), "--workers", "2"])
+        assert result.exit_code == 0, result.output
+        after = records_of(folder)
+        assert sorted(after) == [("oracle", 0), ("oracle", 1), ("oracle", 2)]
+        assert all(after[key] == record for key, record in before.items())
 
 
 @pytest.mark.ray

@@ -127,3 +127,17 @@ def test_what_the_suite_lists_is_refused_beside_it(tmp_path, flags):
 def test_a_missing_suite_file_is_one_line(tmp_path):
     result = CliRunner().invoke(app, ["run", "--suite", str(tmp_path / "none.yaml"), "--out", str(tmp_path / "out")])
     assert result.exit_code == 2 and result.output.strip() == f"error: {tmp_path / 'none.yaml'}: no such file"
+
+
+def test_the_readme_suite_example_is_a_valid_suite(tmp_path):
+    """The suite file README.md shows reads as the runs it describes: 2 scenarios x 2 settings x 3
+    seeds with the defaults, and the warehouse with its own trials."""
+    from runners.suite import read_suite
+
+    readme = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    start = readme.index("```yaml\nformat: navtopo-suite/1") + len("```yaml\n")
+    runs = read_suite(write_suite(tmp_path, readme[start : readme.index("```", start)]))
+    assert len(runs) == 13 and len({run.folder for run in runs}) == 13
+    assert {(run.scenario.name, run.trials) for run in runs} == {("corridor_150m", 5), ("loop_office", 5), ("warehouse", 10)}
+    assert all(run.systems == ["navtopo", "metric_grid"] for run in runs)
+    assert Path("loop_office/s3-noisy") in {run.folder for run in runs}
