@@ -99,7 +99,8 @@ def read_suite(path: Path) -> list[SuiteRun]:
             if name not in loaded:
                 loaded[name] = _load(path, f"runs.{number}.scenarios.{k}", name)
             scenario = loaded[name]
-            for setting in entry.settings or [None]:
+            settings: list[str | None] = list(entry.settings) if entry.settings else [None]  # None: the file's own noise
+            for setting in settings:
                 for seed in entry.seeds or [scenario.spec.seed]:
                     folder = Path(scenario.name) / (f"s{seed}" + (f"-{setting}" if setting else ""))
                     if folder in taken:
