@@ -39,8 +39,12 @@ RayAddressOption = Annotated[
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
-    err.print(f"[bold red]error:[/] {escape(one_line(message))}", highlight=False, soft_wrap=True)
+    error_line(message)
     raise typer.Exit(code)
+
+
+def error_line(message: str) -> None:
+    err.print(f"[bold red]error:[/] {escape(one_line(message))}", highlight=False, soft_wrap=True)
 
 
 def note(message: str) -> None:
@@ -168,15 +172,25 @@ def run(
         Path | None,
         typer.Option(help="reuse the maps of an earlier run (same scenario, seed, setting): navigation trials only"),
     ] = None,
+    suite: Annotated[
+        Path | None,
+        typer.Option(
+            help="a suite file listing the runs (scenarios, seeds, settings, systems, trials; docs/DESIGN.md): "
+            "a folder per run under --out (default <results>/<suite name>); the same command again finishes them"
+        ),
+    ] = None,
 ) -> None:
     """Map each scenario's route with every system, then run the navigation trials.
+
+    Several scenarios, seeds or settings (or a --suite file) make one run each, all on one
+    executor with their jobs in flight together.
 
     The protocol is the same for every system (docs/DESIGN.md): systems that take an initial pose
     get the trial's start with a seeded error (--initial-pose-error), and every system that
     declares "reached" by its own estimate stops within --stop-tolerance of the goal; success is
     the robot's true position within 0.5 m of the goal when it stops.
     """
-    from runners.run import RunOptions, execute, scenario_fingerprint
+    from runners.run import RunOptions, scenario_fingerprint
     from runners.systems import system_names
 
     _check_executor(executor, ray_address)
@@ -223,6 +237,33 @@ def run(
         if value is not None and value < 0:
             fail(f"{flag} {value}: a seed is a non-negative integer")
     scenarios = list(scenarios or [])
+    common = {
+        "workers": workers,
+        "executor": executor,
+        "ray_address": ray_address,
+        "results_root": results,
+        "protocol": protocol,
+        **limits,
+    }
+    if suite is not None:
+        given = [
+            flag
+            for flag, value in (
+                ("SCENARIO", bool(scenarios)),
+                ("--systems", systems != "navtopo,metric_grid,oracle"),
+                ("--trials", trials is not None),
+                ("--seed", seed is not None),
+                ("--seeds", seeds is not None),
+                ("--setting", setting is not None),
+                ("--resume", resume is not None),
+                ("--maps-from", maps_from is not None),
+            )
+            if value
+        ]
+        if given:
+            fail(f"--suite {suite}: {', '.join(given)}: the suite file lists the runs; give these there, not here")
+        _run_suite(suite, out if out is not None else results / suite.stem, config_file, common)
+        return
     if resume is not None:
         if not (resume / "manifest.json").is_file():
             fail(f"{resume}: not a run folder (manifest.json missing)")
@@ -255,7 +296,7 @@ def run(
             systems=manifest["systems"], resume=resume, workers=workers, executor=executor, ray_address=ray_address, **limits
         )
         with _executor(options) as pool:
-            _run_one(scenario, options, execute, pool)
+            _run_all([(scenario, options)], pool)
         return
     if not scenarios:
         fail("give at least one SCENARIO (see `navtopo-bench scenario list`)")
@@ -288,25 +329,70 @@ def run(
             )
         except MapsFromError as exc:
             fail(str(exc))
-    with _executor(RunOptions(systems=names, workers=workers, executor=executor, ray_address=ray_address)) as pool:
-        for scenario, setting_name, s in [(sc, st, sd) for sc in loaded for st in setting_list for sd in seed_list]:
-            options = RunOptions(
+    todo = [
+        (
+            scenario,
+            RunOptions(
                 systems=names,
                 trials=trials,
                 seed=s,
                 out=out,
-                resume=resume,
-                workers=workers,
-                executor=executor,
-                ray_address=ray_address,
-                results_root=results,
                 config_overrides=overrides,
                 setting=setting_name,
-                protocol=protocol,
                 maps_from=maps_from,
-                **limits,
-            )
-            _run_one(scenario, options, execute, pool)
+                **common,
+            ),
+        )
+        for scenario in loaded
+        for setting_name in setting_list
+        for s in seed_list
+    ]
+    with _executor(todo[0][1]) as pool:
+        _run_all(todo, pool)
+
+
+def _run_suite(path: Path, out: Path, config_file: Path | None, common: dict) -> None:
+    """The runs of a suite file, each in its folder under ``out``: a finished one kept, a started
+    one resumed (the same command again finishes the suite), the others made; all on one executor."""
+    from runners.run import RunOptions, in_folder, scenario_fingerprint
+    from runners.suite import read_suite
+    from runners.systems import system_names
+    from scenarios import ScenarioError
+
+    try:
+        runs = read_suite(path)
+    except ScenarioError as exc:  # SuiteError, or the file's YAML
+        fail(str(exc))
+    if out.exists() and not out.is_dir():
+        fail(f"--out {out}: is a file, not a folder")
+    if (out / "manifest.json").exists():
+        fail(f"--out {out}: holds a run, not the runs of a suite; give another --out")
+    writable_dir(out, "--out")
+    names = sorted({name for run in runs for name in run.systems})
+    overrides = _read_overrides(config_file, names) if config_file is not None else None
+    todo = []
+    for run in runs:
+        options = RunOptions(
+            systems=run.systems,
+            trials=run.trials,
+            seed=run.seed,
+            setting=run.setting,
+            config_overrides=overrides,
+            **common,
+        )
+        kept = in_folder(out / run.folder, options)
+        if kept is None:
+            note(f"{out / run.folder}: finished before; kept")
+            continue
+        if kept.resume is not None and _read_manifest(kept.resume, system_names()).get("scenario_sha256") not in (
+            None,
+            scenario_fingerprint(run.scenario),
+        ):
+            fail(f"{run.scenario.path}: changed since {kept.resume} started (sha256 differs from its manifest.json)")
+        todo.append((run.scenario, kept))
+    if todo:
+        with _executor(todo[0][1]) as pool:
+            _run_all(todo, pool, again=f"run the same command again to finish the suite in {out}")
 
 
 def _check_executor(executor: str, ray_address: str | None) -> None:
@@ -394,100 +480,136 @@ def _read_overrides(path: Path, names: list[str]) -> dict:
     return data
 
 
-def _run_one(scenario, options, execute, pool=None) -> None:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+class _RunProgress:
+    """One run's bars (mapping, trials) and lines on the command's progress display."""
 
-    from runners.executors import ExecutorUnavailable
+    def __init__(self, progress, scenario, many: bool) -> None:
+        self.progress, self.scenario, self.many = progress, scenario, many
+        self.folder: Path | None = None
+        self.mapping_task = None  # shown only when a system maps (a resume may find every map done)
+        self.trial_task = None
+        self.logged_tenths = -1
 
-    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
-    with Progress(*columns, console=console, transient=False) as progress:
-        mapping_task = None  # shown only when a system maps (a resume may find every map done)
-        trial_task = None
-        run_folder: list[Path] = []
+    @property
+    def label(self) -> str:
+        """The scenario's name; with several runs, and the run's folder."""
+        if self.many and self.folder is not None:
+            return f"{self.scenario.name} ({self.folder.name})"
+        return self.scenario.name
 
-        logged_tenths = [-1]
+    def hooks(self):
+        from runners.run import RunHooks
 
-        def on_mapping(travelled: float, total: float) -> None:
-            if mapping_task is not None:
-                progress.update(mapping_task, completed=min(round(travelled), round(total)))
-            tenth = int(10 * travelled / max(total, 1e-9))
-            if not console.is_terminal and tenth > logged_tenths[0]:  # logs and CI: a line every 10 %
-                logged_tenths[0] = tenth
-                progress.console.print(f"  mapping {scenario.name}: {travelled:.0f} / {total:.0f} m", highlight=False)
+        return RunHooks(on_stage=self.on_stage, on_mapping=self.on_mapping, on_trial=self.on_trial)
 
-        def on_stage(stage: str, value) -> None:
-            nonlocal mapping_task, trial_task
-            if stage == "run_dir":
-                run_folder.append(value)
-            elif stage == "mapping":
-                mapping_task = progress.add_task(f"[cyan]{scenario.name}[/] mapping (m)", total=round(scenario.route_length_m))
-            elif stage == "navigation":
-                if mapping_task is not None:
-                    progress.update(mapping_task, completed=round(scenario.route_length_m))
-                trial_task = progress.add_task(f"[cyan]{scenario.name}[/] trials", total=value)
+    def on_stage(self, stage: str, value) -> None:
+        route_m = round(self.scenario.route_length_m)
+        if stage == "run_dir":
+            self.folder = value
+        elif stage == "mapping":
+            self.mapping_task = self.progress.add_task(f"[cyan]{escape(self.label)}[/] mapping (m)", total=route_m)
+        elif stage == "navigation":
+            if self.mapping_task is not None:
+                self.progress.update(self.mapping_task, completed=route_m)
+            self.trial_task = self.progress.add_task(f"[cyan]{escape(self.label)}[/] trials", total=value)
 
-        jobs_shown = [None]
+    def on_mapping(self, travelled: float, total: float) -> None:
+        if self.mapping_task is not None:
+            self.progress.update(self.mapping_task, completed=min(round(travelled), round(total)))
+        tenth = int(10 * travelled / max(total, 1e-9))
+        if not console.is_terminal and tenth > self.logged_tenths:  # logs and CI: a line every 10 %
+            self.logged_tenths = tenth
+            self.progress.console.print(f"  mapping {self.label}: {travelled:.0f} / {total:.0f} m", highlight=False)
 
-        def on_jobs(counts: dict) -> None:
-            """The executor's jobs (this command's, across the cluster) on the bar of the stage."""
-            shown = (counts["done"], counts["running"], counts["failed"])
-            task, stage = (trial_task, "trials") if trial_task is not None else (mapping_task, "mapping (m)")
-            if task is not None and shown != jobs_shown[0]:
-                jobs_shown[0] = shown
-                progress.update(
-                    task,
-                    description=f"[cyan]{scenario.name}[/] {stage} (jobs: {counts['done']} done, "
-                    f"{counts['running']} running, {counts['failed']} failed)",
-                )
-
-        def on_trial(record: dict) -> None:
-            if trial_task is not None:
-                progress.advance(trial_task)
-            mark = "[green]ok[/]" if record["success"] else f"[red]{record['reason']}[/]"
-            if record.get("detail"):
-                mark += f" ({escape(record['detail'])})"
-            eff = record["efficiency"]
-            progress.console.print(
-                f"  {record['system']:>12} trial {record['trial']:>3}: {mark}"
-                + (f" efficiency {eff:.3f}" if eff is not None else ""),
-                highlight=False,
-            )
-
-        try:
-            run_dir = execute(
-                scenario, options, on_mapping=on_mapping, on_trial=on_trial, on_stage=on_stage, pool=pool, on_jobs=on_jobs
-            )
-        except ExecutorUnavailable as exc:
-            fail(str(exc))
-        except KeyboardInterrupt:
-            where = f" --resume {run_folder[0]}" if run_folder else ""
-            fail(f"interrupted{'; finish the run with' + where if where else ''}", code=130)
-        except Exception as exc:  # one line for the user, the traceback in the run's log
-            import traceback
-
-            message = f"run of {scenario.name} failed: {type(exc).__name__}: {exc}".replace("\n", " ")
-            if run_folder:
-                log = run_folder[0] / "logs" / "error.log"
-                log.parent.mkdir(parents=True, exist_ok=True)
-                log.write_text(traceback.format_exc())
-                message += f" (traceback in {log})"
-            fail(message, code=1)
-    if run_dir.failed_stages:
-        failures = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
-        fail(f"navigation stage failed, no trial counted ({failures}); after fixing it: --resume {run_dir.root}", code=1)
-    from runners.results import read_json
-
-    if read_json(run_dir.manifest_path).get("trial_count") == 0:
-        console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
-    else:
-        print_summary(run_dir.root)
-    console.print(f"results: [bold]{run_dir.root}[/]")
-    if run_dir.warnings:
-        err.print(
-            f"warning: {run_dir.warnings} trial(s) failed in their worker (error, crashed, timeout or out_of_memory; "
-            f"the record's detail says why): {run_dir.trials_path}",
+    def on_trial(self, record: dict) -> None:
+        if self.trial_task is not None:
+            self.progress.advance(self.trial_task)
+        mark = "[green]ok[/]" if record["success"] else f"[red]{record['reason']}[/]"
+        if record.get("detail"):
+            mark += f" ({escape(record['detail'])})"
+        eff = record["efficiency"]
+        where = f"{escape(self.label)}: " if self.many else ""
+        self.progress.console.print(
+            f"  {where}{record['system']:>12} trial {record['trial']:>3}: {mark}"
+            + (f" efficiency {eff:.3f}" if eff is not None else ""),
             highlight=False,
         )
+
+
+def _run_all(todo: list, pool, again: str | None = None) -> None:
+    """Every (scenario, options) on ``pool``, their jobs in flight together, with a bar per run and
+    stage and one for the jobs of all runs (done, running, failed); then ``_report_outcomes``.
+    Ctrl-C exits 130 saying how to finish (``again``, else the --resume of each unfinished run)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from runners.run import RunPlan, execute_runs
+
+    if not todo:
+        return
+    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
+    with Progress(*columns, console=console, transient=False) as progress:
+        shown = [_RunProgress(progress, scenario, many=len(todo) > 1) for scenario, _ in todo]
+        jobs_task = progress.add_task("jobs", total=0)
+
+        def on_jobs(counts: dict) -> None:
+            ended = counts["done"] + counts["failed"]
+            progress.update(
+                jobs_task,
+                completed=ended,
+                total=ended + counts["running"] + counts["queued"],
+                description=f"jobs ({counts['done']} done, {counts['running']} running, {counts['failed']} failed)",
+            )
+
+        plans = [RunPlan(scenario, options, run.hooks()) for (scenario, options), run in zip(todo, shown, strict=True)]
+        try:
+            outcomes = execute_runs(plans, pool, on_jobs)
+        except KeyboardInterrupt:
+            if again is not None:
+                fail(f"interrupted; {again}", code=130)
+            unfinished = [run.folder for run in shown if run.folder is not None and not (run.folder / "summary.json").is_file()]
+            how = ", ".join(f"--resume {folder}" for folder in unfinished)
+            fail(
+                f"interrupted; finish the run{'s' if len(unfinished) > 1 else ''} with {how}" if how else "interrupted", code=130
+            )
+    _report_outcomes(shown, outcomes)
+
+
+def _report_outcomes(shown: list[_RunProgress], outcomes: list) -> None:
+    """Each run's summary and warnings, in order; then an error line per failed run, exit 1."""
+    from runners.results import read_json
+
+    failures = []
+    for run, outcome in zip(shown, outcomes, strict=True):
+        if outcome.error is not None:  # its traceback goes to <run>/logs/error.log
+            exc = outcome.error
+            message = f"run of {run.label} failed: {type(exc).__name__}: {exc}"
+            if run.folder is not None:
+                log = run.folder / "logs" / "error.log"
+                log.parent.mkdir(parents=True, exist_ok=True)
+                log.write_text(outcome.traceback)
+                message += f" (traceback in {log})"
+            failures.append(message)
+            continue
+        run_dir = outcome.value
+        if run_dir.failed_stages:
+            why = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
+            failures.append(f"navigation stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
+            continue
+        if read_json(run_dir.manifest_path).get("trial_count") == 0:
+            console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+        else:
+            print_summary(run_dir.root)
+        console.print(f"results: [bold]{run_dir.root}[/]")
+        if run_dir.warnings:
+            err.print(
+                f"warning: {run_dir.warnings} trial(s) failed in their worker (error, crashed, timeout or out_of_memory; "
+                f"the record's detail says why): {run_dir.trials_path}",
+                highlight=False,
+            )
+    for message in failures:
+        error_line(message)
+    if failures:
+        raise typer.Exit(1)
 
 
 def print_summary(run_dir: Path) -> None:
@@ -761,17 +883,10 @@ def sweep_drift(
 
 
 def _run_sweep(options, run_sweep) -> list[Path]:
-    """Every run of a sweep on one executor (opened once: one Ray instance for the whole sweep)."""
-    from runners.run import RunDir, execute
-
+    """Every run of a sweep on one executor, in flight together (one Ray instance for the whole sweep)."""
     _check_executor(options.executor, options.ray_address)
     with _executor(options) as pool:
-
-        def run_one(scenario, run_options):
-            _run_one(scenario, run_options, execute, pool)
-            return RunDir(run_options.out or run_options.resume)
-
-        return run_sweep(options, run_one)
+        return run_sweep(options, lambda todo: _run_all(todo, pool, again="run the same command again to finish the sweep"))
 
 
 def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:

@@ -7,6 +7,12 @@ clean process and (2) a process that dies fails only its own job — and every m
 stream back the moment the trial ends, so a crash of the worker, or of the driver, loses at most
 the trial that was running. Jobs never write the results folder; the driver alone does.
 
+Order: a job waits in the queue until a slot is free; jobs of a lower ``priority`` start first,
+in submission order among equals (several runs share one executor: an earlier run's jobs go
+first and a later run's fill the slots it leaves idle, ``runners.driver``). Each event names where
+its job ran (``worker``: host, process id and, on Ray, the node id), a fact of the execution like
+its timing.
+
 Streaming: ``local`` sends each message through a pipe from the spawned process; ``ray`` runs the
 job as a Ray generator task (one ``ObjectRef`` per message, ``max_calls=1`` so that each task gets
 a fresh worker process, ``max_retries=0`` so that a trial that killed its worker is not run
@@ -33,6 +39,7 @@ node on 127.0.0.1 and a temporary folder of its own, and is shut down when the e
 from __future__ import annotations
 
 import contextlib
+import heapq
 import importlib.util
 import multiprocessing
 import os
@@ -44,7 +51,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -77,12 +83,14 @@ class Failure:
 
 @dataclass
 class Event:
-    """A message a job yielded (``message``), or its end (``done``; ``failure`` if it ended early)."""
+    """A message a job yielded (``message``), or its end (``done``; ``failure`` if it ended early).
+    ``worker``: where the job ran, {host, pid, node} (node: the Ray node id; None locally), once known."""
 
     key: Any
     message: dict[str, Any] | None = None
     done: bool = False
     failure: Failure | None = None
+    worker: dict[str, Any] | None = None
 
 
 @dataclass
@@ -94,25 +102,26 @@ class _Running:
     deadline: float | None = None
     limit_s: float | None = None
     handle: Any = None
+    worker: dict[str, Any] | None = None
 
 
 class Executor:
-    """Jobs in, events out: at most ``slots`` jobs run at once; the rest wait in submission order."""
+    """Jobs in, events out: at most ``slots`` jobs run at once; the rest wait, lowest priority first."""
 
     name = "base"
 
     def __init__(self, slots: int) -> None:
         self.slots = max(1, int(slots))
-        self._queued: deque[_Running] = deque()
+        self._queued: list[tuple[int, int, _Running]] = []  # a heap of (priority, submission, job)
         self._running: dict[int, _Running] = {}
         self._inbox: queue.Queue[tuple[int, str, Any]] = queue.Queue()
         self._next_id = 0
         self.counts = {"done": 0, "failed": 0}
 
     # -- the caller's side -------------------------------------------------------------------
-    def submit(self, key: Any, fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any) -> None:
+    def submit(self, key: Any, fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any, priority: int = 0) -> None:
         self._next_id += 1
-        self._queued.append(_Running(self._next_id, key, fn, job))
+        heapq.heappush(self._queued, (priority, self._next_id, _Running(self._next_id, key, fn, job)))
 
     @property
     def running(self) -> int:
@@ -128,7 +137,7 @@ class Executor:
         try:
             while self._queued or self._running:
                 while self._queued and len(self._running) < self.slots:
-                    run = self._queued.popleft()
+                    run = heapq.heappop(self._queued)[2]
                     self._running[run.id] = run
                     self._start(run)
                 items = []
@@ -142,21 +151,26 @@ class Executor:
                     run = self._running.get(run_id)
                     if run is None:
                         continue  # the rest of a job already ended (killed on its deadline)
-                    if kind == "message":
+                    if kind == "worker":
+                        run.worker = payload
+                    elif kind == "message":
                         run.limit_s = payload.pop("deadline_s", None)
                         run.deadline = time.monotonic() + run.limit_s if run.limit_s else None
-                        yield Event(run.key, message=payload)
+                        yield Event(run.key, message=payload, worker=run.worker)
                     else:
                         del self._running[run_id]
                         self.counts["failed" if payload is not None else "done"] += 1
-                        yield Event(run.key, done=True, failure=payload)
+                        yield Event(run.key, done=True, failure=payload, worker=run.worker)
                 now = time.monotonic()
                 for run in [r for r in self._running.values() if r.deadline is not None and now > r.deadline]:
                     del self._running[run.id]
                     self._kill(run)
                     self.counts["failed"] += 1
                     yield Event(
-                        run.key, done=True, failure=Failure("timeout", f"passed its wall-clock limit of {run.limit_s:g} s")
+                        run.key,
+                        done=True,
+                        failure=Failure("timeout", f"passed its wall-clock limit of {run.limit_s:g} s"),
+                        worker=run.worker,
                     )
                 if not items:
                     yield None
@@ -164,12 +178,16 @@ class Executor:
             self.cancel()
             raise
 
-    def cancel(self) -> None:
-        """Drop the queued jobs and kill the running ones."""
+    def cancel(self, keys: Callable[[Any], bool] | None = None) -> None:
+        """Drop the queued jobs and kill the running ones: all, or those whose key ``keys`` accepts
+        (the jobs of one run that failed; the others go on). A cancelled job sends no event."""
+        chosen = keys or (lambda _key: True)
         with uninterrupted():
-            self._queued.clear()
-            running, self._running = list(self._running.values()), {}
+            self._queued = [entry for entry in self._queued if not chosen(entry[2].key)]
+            heapq.heapify(self._queued)
+            running = [run for run in self._running.values() if chosen(run.key)]
             for run in running:
+                del self._running[run.id]
                 self._kill(run)
 
     def close(self) -> None:
@@ -273,6 +291,7 @@ class LocalExecutor(Executor):
         process.start()
         sender.close()  # the worker holds the only sending end: its death ends our reads
         run.handle = process
+        run.worker = {"host": socket.gethostname(), "pid": process.pid, "node": None}
         threading.Thread(target=self._pump, args=(run, receiver, process), daemon=True).start()
 
     def _pump(self, run: _Running, receiver: Any, process: Any) -> None:
@@ -328,8 +347,12 @@ def _probe(address: str, timeout_s: float = 5.0) -> None:
 
 
 def _ray_job(fn: Callable[[Any], Iterator[dict[str, Any]]], job: Any, sys_path: list[str]) -> Iterator[dict[str, Any]]:
+    """The task: first where it runs (for ``Event.worker``), then the job's messages."""
     import sys
 
+    import ray
+
+    yield {"host": socket.gethostname(), "pid": os.getpid(), "node": ray.get_runtime_context().get_node_id()}
     sys.path.extend(p for p in sys_path if p not in sys.path)  # as a spawned local worker gets it
     one_thread_per_job()
     yield from fn(job)
@@ -352,7 +375,7 @@ class RayExecutor(Executor):
             os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
         self._temp_dir = None
         self._ray = None
-        self._queued, self._running = deque(), {}  # close() may run before the executor is complete
+        self._queued, self._running = [], {}  # close() may run before the executor is complete
         if address is None:
             self._temp_dir = tempfile.mkdtemp(prefix="ntb-ray-")  # short: Ray's socket paths must fit 107 bytes
             os.environ["RAY_TMPDIR"] = self._temp_dir
@@ -391,8 +414,8 @@ class RayExecutor(Executor):
     def _pump(self, run: _Running) -> None:
         ray = self._ray
         try:
-            for ref in run.handle:
-                self._put(run, "message", ray.get(ref))
+            for number, ref in enumerate(run.handle):
+                self._put(run, "worker" if number == 0 else "message", ray.get(ref))
         except ray.exceptions.RayTaskError as exc:  # the job raised: its own exception, one line
             cause = exc.cause if isinstance(exc.cause, BaseException) else exc
             self._put(run, "end", Failure("error", one_line(cause)))

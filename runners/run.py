@@ -19,6 +19,7 @@ from typing import Any
 
 import psutil
 
+from runners.driver import Outcome, Steps, Submission, drive
 from runners.executors import Executor, open_executor
 from runners.ground_truth import write_ground_truth
 from runners.mapping import MappingJob, RouteError, mapping_job
@@ -128,6 +129,35 @@ def new_run_dir(options: RunOptions, scenario: Scenario, seed: int) -> RunDir:
     return RunDir(root)
 
 
+@dataclass
+class RunHooks:
+    """What a run tells its caller as it goes (each optional).
+
+    on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count);
+    on_mapping(travelled_m, route_m): the slowest mapping drive; on_trial(record): a trial recorded."""
+
+    on_stage: Callable[[str, Any], None] | None = None
+    on_mapping: Callable[[float, float], None] | None = None
+    on_trial: Callable[[dict[str, Any]], None] | None = None
+
+
+@dataclass
+class RunPlan:
+    scenario: Scenario
+    options: RunOptions
+    hooks: RunHooks = field(default_factory=RunHooks)
+
+
+def in_folder(folder: Path, options: RunOptions) -> RunOptions | None:
+    """``options`` for the run kept in ``folder``, as the same command run again finds it (sweeps,
+    suites): None if it is finished (its summary is there), a resume if it started, else a new run."""
+    if (folder / "summary.json").is_file():
+        return None
+    if (folder / "manifest.json").is_file():
+        return dataclasses.replace(options, out=None, resume=folder)
+    return dataclasses.replace(options, out=folder, resume=None)
+
+
 def execute(
     scenario: Scenario,
     options: RunOptions,
@@ -137,13 +167,35 @@ def execute(
     pool: Executor | None = None,
     on_jobs: Callable[[dict[str, int]], None] | None = None,
 ) -> RunDir:
-    """Run (or resume) one run of one scenario with one seed; returns its folder.
+    """Run (or resume) one run of one scenario with one seed; returns its folder (``execute_runs``
+    with one plan; what the run raised is raised here)."""
+    opened = pool is None
+    pool = pool or open_executor(options.executor, options.workers, options.ray_address)
+    try:
+        [outcome] = execute_runs([RunPlan(scenario, options, RunHooks(on_stage, on_mapping, on_trial))], pool, on_jobs)
+    finally:
+        if opened:
+            pool.close()
+    if outcome.error is not None:
+        raise outcome.error
+    return outcome.value
 
-    on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count).
-    pool: the executor to run the jobs on (several runs share one); None: one of ``options``'s,
-    closed at the end. on_jobs({done, failed, running, queued}): the executor's jobs, while they run.
-    """
-    say = on_stage or (lambda _stage, _value: None)
+
+def execute_runs(plans: list[RunPlan], pool: Executor, on_jobs: Callable[[dict[str, int]], None] | None = None) -> list[Outcome]:
+    """Run (or resume) every plan on one executor, their jobs in flight together (``runners.driver``);
+    an outcome per plan, in order: its ``RunDir`` as ``value``, or the ``error`` it failed with (the
+    other runs went on). on_jobs({done, failed, running, queued}): the executor's jobs, all runs."""
+    share = max(1, pool.slots // max(1, len(plans)))
+    return drive([run_steps(plan.scenario, plan.options, plan.hooks, pool.slots, share) for plan in plans], pool, on_jobs)
+
+
+def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: int, share: int) -> Steps:
+    """One run as steps (``runners.driver``): the folder and manifest, mapping, navigation once this
+    run's maps are in, the summary; returns the ``RunDir``.
+
+    slots: the executor's; share: the slots this run may count on (its mapping drives, at most one
+    a system: fewer drives cost less when other runs fill the slots; see ``MappingJob``)."""
+    say = hooks.on_stage or (lambda _stage, _value: None)
     if options.resume is not None:
         run = RunDir(options.resume)
         manifest = read_json(run.manifest_path)
@@ -194,46 +246,26 @@ def execute(
         reuse_maps(options.maps_from, run, systems, manifest_of_run=read_json(run.manifest_path))
 
     files = ScenarioFiles.of(scenario)
-    opened = pool is None
-    pool = pool or open_executor(options.executor, options.workers, options.ray_address)
-    try:
-        # stage 1: mapping, a job per system (skipped for systems whose map and report are there)
-        todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
-        if todo:
-            say("mapping", todo)
-            groups = [todo[k :: pool.slots] for k in range(min(pool.slots, len(todo)))]
-            jobs = [
-                MappingJob(
-                    files,
-                    {name: configs[name] for name in group},
-                    seed,
-                    setting_override,
-                    sorted({m for name in group for m in modules_of(entries[name])}),
-                )
-                for group in groups
-            ]
-            map_systems(run, jobs, pool, on_mapping, on_jobs)
-        mapping = {name: read_json(run.mapping_path(name)) for name in systems}
-        navigate(
-            run,
-            scenario,
-            files,
-            systems,
-            configs,
-            mapping,
-            seed,
-            trial_count,
-            setting_override,
-            protocol,
-            options,
-            pool,
-            on_trial,
-            say,
-            on_jobs,
-        )
-    finally:
-        if opened:
-            pool.close()
+    # stage 1: mapping, a job per drive (skipped for systems whose map and report are there)
+    todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
+    if todo:
+        say("mapping", todo)
+        drives = min(share, len(todo))
+        groups = [todo[k::drives] for k in range(drives)]
+        jobs = [
+            MappingJob(
+                files,
+                {name: configs[name] for name in group},
+                seed,
+                setting_override,
+                sorted({m for name in group for m in modules_of(entries[name])}),
+            )
+            for group in groups
+        ]
+        yield from map_systems(run, jobs, hooks.on_mapping)
+    mapping = {name: read_json(run.mapping_path(name)) for name in systems}
+    trials = TrialPlan(scenario, files, systems, configs, mapping, seed, trial_count, setting_override, protocol)
+    yield from navigate(run, trials, options, slots, hooks.on_trial, say)
     if run.failed_stages:
         return run  # no summary: the run is unfinished, and --resume retries the stage
     write_summary(run, systems, mapping)
@@ -245,28 +277,16 @@ def modules_of(entry: SystemEntry) -> list[str]:
     return [entry.cls.__module__]
 
 
-def _jobs_progress(pool: Executor, on_jobs: Callable[[dict[str, int]], None] | None) -> None:
-    if on_jobs is not None:
-        on_jobs({"done": pool.counts["done"], "failed": pool.counts["failed"], "running": pool.running, "queued": pool.queued})
-
-
-def map_systems(
-    run: RunDir,
-    jobs: list[MappingJob],
-    pool: Executor,
-    on_mapping: Callable[[float, float], None] | None,
-    on_jobs: Callable[[dict[str, int]], None] | None = None,
-) -> None:
-    """Stage 1: the mapping jobs; the driver installs each map (whole, atomically) and then its
-    report, so that a report on disk means a complete map beside it."""
+def map_systems(run: RunDir, jobs: list[MappingJob], on_mapping: Callable[[float, float], None] | None) -> Steps:
+    """Stage 1 as steps: the mapping jobs; the driver installs each map (whole, atomically) and then
+    its report, so that a report on disk means a complete map beside it."""
     driven = {k: 0.0 for k in range(len(jobs))}
     mapped: set[str] = set()
-    for k, job in enumerate(jobs):
-        pool.submit(k, mapping_job, job)
-    for event in pool.events():
-        _jobs_progress(pool, on_jobs)
-        if event is None:
-            continue
+    submit: list[Submission] = [(k, mapping_job, job) for k, job in enumerate(jobs)]
+    running = len(jobs)
+    while running:
+        event = yield submit
+        submit = []
         k, message = event.key, event.message
         if message is not None and message["kind"] == "progress":
             driven[k] = message["travelled_m"]
@@ -279,45 +299,55 @@ def map_systems(
             write_json(run.mapping_path(message["system"]), message["report"])
             mapped.add(message["system"])
         elif message is not None and message["kind"] == "route_error":
-            pool.cancel()
-            raise RouteError(message["detail"])
-        elif event.failure is not None:  # the job died or raised outside the systems' calls
-            detail = f"{event.failure.kind}: {event.failure.detail}"
-            for name in jobs[k].configs:
-                if name not in mapped:
-                    write_json(
-                        run.mapping_path(name), {"error": detail, "scans": None, "map_bytes": None, "map_disk_bytes": None}
-                    )
+            raise RouteError(message["detail"])  # the driver ends this run's other jobs
+        elif event.done:
+            running -= 1
+            if event.failure is not None:  # the job died or raised outside the systems' calls
+                detail = f"{event.failure.kind}: {event.failure.detail}"
+                for name in jobs[k].configs:
+                    if name not in mapped:
+                        write_json(
+                            run.mapping_path(name), {"error": detail, "scans": None, "map_bytes": None, "map_disk_bytes": None}
+                        )
+
+
+@dataclass
+class TrialPlan:
+    """What the navigation stage of a run needs to know of it."""
+
+    scenario: Scenario
+    files: ScenarioFiles
+    systems: list[str]
+    configs: dict[str, Any]
+    mapping: dict[str, dict[str, Any]]  # system -> its mapping report
+    seed: int
+    trial_count: int | None
+    setting: str | None
+    protocol: TrialProtocol
 
 
 def navigate(
     run: RunDir,
-    scenario: Scenario,
-    scenario_files: ScenarioFiles,
-    systems: list[str],
-    configs: dict[str, Any],
-    mapping: dict[str, dict[str, Any]],
-    seed: int,
-    trial_count: int | None,
-    setting_override: str | None,
-    protocol: TrialProtocol,
+    plan: TrialPlan,
     options: RunOptions,
-    pool: Executor,
+    slots: int,
     on_trial: Callable[[dict[str, Any]], None] | None,
     say: Callable[[str, Any], None],
-    on_jobs: Callable[[dict[str, int]], None] | None = None,
-) -> None:
-    """Stage 2: a system whose mapping failed fails its trials with that reason; the others' trials
-    run in chunks, one job per chunk. A trial whose worker crashed or passed its wall-clock limit
-    is recorded so (``crashed`` / ``timeout``) and the rest of its chunk runs in a new job."""
+) -> Steps:
+    """Stage 2 as steps: a system whose mapping failed fails its trials with that reason; the others'
+    trials run in chunks (``slots`` a system), one job per chunk. A trial whose worker crashed or
+    passed its wall-clock limit is recorded so (``crashed`` / ``timeout``) and the rest of its chunk
+    runs in a new job. Each record names the worker that ran it (``worker``; None if none did)."""
+    scenario, trial_count = plan.scenario, plan.trial_count
     run.repair_trials()
     done = {(r["system"], r["trial"]) for r in run.read_trials()}
     run.failed_stages = {}
     run.warnings = 0
 
-    def record(message_or_record: dict[str, Any]) -> None:
+    def record(message_or_record: dict[str, Any], worker: dict[str, Any] | None) -> None:
         is_message = "record" in message_or_record
         rec = message_or_record["record"] if is_message else message_or_record
+        rec["worker"] = worker
         if is_message:
             write_trial(run, scenario, message_or_record)
         else:
@@ -328,33 +358,33 @@ def navigate(
             on_trial(rec)
 
     def failed(system: str, index: int, reason: str, detail: str) -> dict[str, Any]:
-        return trial_record(system, index, scenario.trials[index], seed, success=False, reason=reason, detail=detail[:300])
+        return trial_record(system, index, scenario.trials[index], plan.seed, success=False, reason=reason, detail=detail[:300])
 
-    for name in systems:
-        if "error" in mapping[name]:
+    for name in plan.systems:
+        if "error" in plan.mapping[name]:
             for i in range(trial_count or 0):
                 if (name, i) not in done:
-                    record(failed(name, i, "error", f"mapping failed: {mapping[name]['error']}"))
+                    record(failed(name, i, "error", f"mapping failed: {plan.mapping[name]['error']}"), None)
     jobs = []
-    for name in systems:
+    for name in plan.systems:
         pending = [i for i in range(trial_count or 0) if (name, i) not in done]
         if not pending:
             continue
-        chunks = [pending[k :: pool.slots] for k in range(pool.slots)]
+        chunks = [pending[k::slots] for k in range(slots)]
         archive = pack_dir(run.map_dir(name))
         for k, chunk in enumerate(c for c in chunks if c):
             jobs.append(
                 TrialJob(
-                    scenario=scenario_files,
+                    scenario=plan.files,
                     system=name,
-                    config=configs[name],
+                    config=plan.configs[name],
                     map_archive=archive,
                     trials=chunk,
-                    seed=seed,
+                    seed=plan.seed,
                     measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
-                    setting=setting_override,
-                    protocol=protocol.as_json(),
-                    anchors=mapping[name].get("anchors"),
+                    setting=plan.setting,
+                    protocol=plan.protocol.as_json(),
+                    anchors=plan.mapping[name].get("anchors"),
                     trial_wall_s=options.trial_wall_s,
                     trial_memory_mb=options.trial_memory_mb,
                     modules=modules_of(get_system(name)),
@@ -365,18 +395,18 @@ def navigate(
     say("navigation", sum(len(j.trials) for j in jobs))
     started: dict[int, int] = {}  # job number -> the trial it started last
     numbers = itertools.count()
-    for job in jobs:
-        pool.submit((next(numbers), job), trial_job, job)
-    for event in pool.events():
-        _jobs_progress(pool, on_jobs)
-        if event is None:
-            continue
+    submit: list[Submission] = [((next(numbers), job), trial_job, job) for job in jobs]
+    running = 0
+    while submit or running:
+        running += len(submit)
+        event = yield submit
+        submit = []
         (number, job), message = event.key, event.message
         if message is not None:
             if message["kind"] == "started":
                 started[number] = message["trial"]
             elif message["kind"] == "trial":
-                record(message)
+                record(message, event.worker)
             elif message["kind"] == "memory":
                 write_json(run.root / "navigation" / f"{job.system}.json", message["report"])
             elif message["kind"] == "map_load_error":  # no trial ran: a failed stage, not failed trials
@@ -384,13 +414,14 @@ def navigate(
                     job.system, f"the map in {run.map_dir(job.system)} cannot be loaded: {message['detail']}"
                 )
             continue
+        running -= 1
         unrun = [i for i in job.trials if (job.system, i) not in done]
         if event.failure is None or not unrun or job.system in run.failed_stages:
             continue
         kind, detail = event.failure.kind, event.failure.detail
         if kind == "error":  # the job raised outside a trial (trials catch their own): its trials fail
             for index in unrun:
-                record(failed(job.system, index, "error", detail))
+                record(failed(job.system, index, "error", detail), event.worker)
             continue
         # crashed or timeout: the trial that was running fails; if the worker died before its first
         # trial, that first trial fails (so that a job that cannot start does not come back for
@@ -400,11 +431,11 @@ def navigate(
         if culprit is not None:
             if kind == "crashed" and options.trial_memory_mb is not None:
                 detail += f" (under --trial-memory-mb {options.trial_memory_mb:g}: perhaps out of memory)"
-            record(failed(job.system, culprit, kind, detail))
+            record(failed(job.system, culprit, kind, detail), event.worker)
         rest = [i for i in unrun if i != culprit]
         if rest:
             retry = dataclasses.replace(job, trials=rest)
-            pool.submit((next(numbers), retry), trial_job, retry)
+            submit.append(((next(numbers), retry), trial_job, retry))
 
 
 class MapsFromError(ValueError):

@@ -3,23 +3,27 @@
 For each total corridor length a scenario is generated (``--building lattice``, the default:
 ``scenarios.lattice.lattice_building``, corridors round blocks, so with loops; ``tree``:
 ``scenarios.generators.corridor_tree``; both dressed with door niches, side rooms, furniture and
-pillars; same seed, same building), written as a YAML file under ``<out>/scenarios/`` (so every run can be resumed and
-repeated from its manifest), then run like ``navtopo-bench run`` into ``<out>/<length>m/``: the
-mapping route (an auto tour of ``route_factor`` x the corridor length at least) and a fixed number of
-trials for each system. ``reports.sweep`` then reads those folders alone and plots planning time
-and every memory part against the environment size, log-log, with fitted growth exponents.
+pillars; same seed, same building), written as a YAML file under ``<out>/scenarios/`` (so every
+run can be resumed and repeated from its manifest), then run like ``navtopo-bench run`` into
+``<out>/<length>m/``: the mapping route (an auto tour of ``route_factor`` x the corridor length at
+least) and a fixed number of trials for each system. The sizes run on one executor, their jobs in
+flight together (``runners.driver``). ``reports.sweep`` then reads those folders alone and plots
+planning time and every memory part against the environment size, log-log, with fitted growth
+exponents.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
+from runners.executors import open_executor
 from runners.protocol import TrialProtocol
-from runners.run import RunDir, RunOptions, execute
+from runners.run import RunOptions, RunPlan, execute_runs, in_folder
 from scenarios import Scenario, load_scenario
 from scenarios.generators import corridor_tree
 from scenarios.lattice import lattice_building
@@ -27,6 +31,8 @@ from scenarios.lattice import lattice_building
 DEFAULT_LENGTHS = (150, 300, 600, 1200, 2400)
 DEFAULT_SYSTEMS = ("navtopo", "metric_grid")
 GENERATORS = {"lattice": lattice_building, "tree": corridor_tree}
+# runs them all, on one executor: the (scenario, options) of each run to make or resume
+RunAll = Callable[[list[tuple[Scenario, RunOptions]]], None]
 
 
 @dataclass
@@ -66,20 +72,21 @@ def scaling_scenario_file(length: float, options: ScalingOptions) -> Path:
     return path
 
 
-def run_scaling(
-    options: ScalingOptions,
-    run_one: Callable[[Scenario, RunOptions], RunDir] | None = None,
-) -> list[Path]:
-    """Every size in turn (a finished size is kept, an interrupted one resumed); returns the run folders."""
-    jobs = [
-        (
-            lambda length=length: load_scenario(scaling_scenario_file(length, options)),
-            options.out / f"{int(round(length))}m",
-            options.setting,
-        )
-        for length in options.lengths
-    ]
-    return _run_each(jobs, options, run_one)
+def run_scaling(options: ScalingOptions, run_all: RunAll | None = None) -> list[Path]:
+    """Every size (a finished size is kept, an interrupted one resumed), all on one executor;
+    returns the run folders."""
+    return _run_each(
+        [
+            (
+                options.out / f"{int(round(length))}m",
+                options.setting,
+                lambda length=length: load_scenario(scaling_scenario_file(length, options)),
+            )
+            for length in options.lengths
+        ],
+        options,
+        run_all,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -101,38 +108,43 @@ class DriftOptions:
     protocol: TrialProtocol = field(default_factory=TrialProtocol)
 
 
-def run_drift(options: DriftOptions, run_one: Callable[[Scenario, RunOptions], RunDir] | None = None) -> list[Path]:
+def run_drift(options: DriftOptions, run_all: RunAll | None = None) -> list[Path]:
     """The scenario once per level into ``<out>/<level>/`` (a finished level kept, an interrupted one
-    resumed); the same seed, route and trials, only the noise differs. Returns the run folders."""
+    resumed), all on one executor; the same seed, route and trials, only the noise differs. Returns
+    the run folders."""
     scenario = load_scenario(options.scenario)
-    jobs = [(lambda: scenario, options.out / level, level) for level in options.levels]
-    return _run_each(jobs, options, run_one)
+    return _run_each([(options.out / level, level, lambda: scenario) for level in options.levels], options, run_all)
 
 
 def _run_each(
-    jobs: list[tuple[Callable[[], Scenario], Path, str | None]],
+    runs: list[tuple[Path, str | None, Callable[[], Scenario]]],
     options: ScalingOptions | DriftOptions,
-    run_one: Callable[[Scenario, RunOptions], RunDir] | None,
+    run_all: RunAll | None,
 ) -> list[Path]:
-    """Run each (scenario loader, folder, setting) in turn, every run's jobs on the sweep's
-    executor: a finished folder is kept, an interrupted one resumed. Returns the run folders."""
-    run_one = run_one or (lambda scenario, run_options: execute(scenario, run_options))
-    folders = []
-    for load, folder, setting in jobs:
-        if (folder / "summary.json").is_file():
-            folders.append(folder)
-            continue
-        resume = folder if (folder / "manifest.json").is_file() else None
-        run_options = RunOptions(
-            systems=list(options.systems),
-            trials=options.trials,
-            out=None if resume else folder,
-            resume=resume,
-            workers=options.workers,
-            executor=options.executor,
-            ray_address=options.ray_address,
-            setting=setting,
-            protocol=options.protocol,
-        )
-        folders.append(run_one(load(), run_options).root)
-    return folders
+    """Run each (folder, setting, scenario loader) but those finished, together on the sweep's
+    executor: an interrupted folder is resumed. Returns the run folders."""
+    base = RunOptions(
+        systems=list(options.systems),
+        trials=options.trials,
+        workers=options.workers,
+        executor=options.executor,
+        ray_address=options.ray_address,
+        protocol=options.protocol,
+    )
+    todo = []
+    for folder, setting, load in runs:
+        run_options = in_folder(folder, dataclasses.replace(base, setting=setting))
+        if run_options is not None:
+            todo.append((load(), run_options))
+    (run_all or _execute_all)(todo)
+    return [folder for folder, _, _ in runs]
+
+
+def _execute_all(todo: list[tuple[Scenario, RunOptions]]) -> None:
+    if not todo:
+        return
+    first = todo[0][1]
+    with open_executor(first.executor, first.workers, first.ray_address) as pool:
+        for outcome in execute_runs([RunPlan(scenario, options) for scenario, options in todo], pool):
+            if outcome.error is not None:
+                raise outcome.error

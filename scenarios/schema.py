@@ -224,12 +224,16 @@ def parse_spec(data: Any, file: str | Path) -> ScenarioSpec:
     try:
         spec = ScenarioSpec.model_validate(data)
     except ValidationError as exc:
-        errors = exc.errors()
-        # with a union ('trials'), prefer the branch error that names a real key
-        errors.sort(key=lambda e: e["type"] == "list_type" or e["type"] == "model_type")
-        first = errors[0]
-        raise ScenarioError(file, _key(first["loc"]), _reason(first)) from None
+        raise ScenarioError(file, *first_problem(exc)) from None
     return check_spec(spec, file)
+
+
+def first_problem(exc: ValidationError) -> tuple[str, str]:
+    """The key and the reason of a validation's first problem, as a user reads them."""
+    errors = exc.errors()
+    # with a union ('trials'), prefer the branch error that names a real key
+    errors.sort(key=lambda e: e["type"] == "list_type" or e["type"] == "model_type")
+    return _key(errors[0]["loc"]), _reason(errors[0])
 
 
 def check_spec(spec: ScenarioSpec, file: str | Path) -> ScenarioSpec:

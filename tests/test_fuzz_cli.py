@@ -162,12 +162,13 @@ def test_run_refuses_any_bad_input_in_one_line_before_creating_anything(tmp_path
     or refuses with one line, leaving the folders as they were."""
     import runners.run
 
-    def reached(scenario, options, **_callbacks):
-        json.dumps(options.protocol.as_json(), allow_nan=False)  # what the manifest will store
-        assert all(isinstance(s, int) and s >= 0 for s in [options.seed] if s is not None)
+    def reached(plans, pool, on_jobs=None):
+        for plan in plans:
+            json.dumps(plan.options.protocol.as_json(), allow_nan=False)  # what the manifest will store
+            assert all(isinstance(s, int) and s >= 0 for s in [plan.options.seed] if s is not None)
         raise SystemExit(0)
 
-    monkeypatch.setattr(runners.run, "execute", reached)
+    monkeypatch.setattr(runners.run, "execute_runs", reached)
     work = tmp_path / "work"
     shutil.rmtree(work, ignore_errors=True)
     (work / "FOLDER").mkdir(parents=True)

@@ -332,6 +332,17 @@ def wait_for(predicate, timeout: float) -> bool:
     return False
 
 
+def ctrl_c(process, wait_s: float = 30.0) -> None:
+    """SIGINT to a driver: it must exit 130, in less than 10 s."""
+    import signal
+    import time
+
+    process.send_signal(signal.SIGINT)
+    started = time.monotonic()
+    assert process.wait(timeout=wait_s) == 130
+    assert time.monotonic() - started < 10
+
+
 def write_slow_job(folder) -> None:
     """``slow_job.job(marker)``: writes the marker, then sleeps a minute before its one message."""
     (folder / "slow_job.py").write_text(
@@ -341,7 +352,6 @@ def write_slow_job(folder) -> None:
 
 
 def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
-    import signal
     import subprocess
     import sys
     import time
@@ -365,10 +375,7 @@ def test_ctrl_c_ends_the_running_worker_and_cancels_the_queued_jobs(tmp_path):
     process = subprocess.Popen([sys.executable, "-c", driver], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     try:
         assert wait_for(lambda: (tmp_path / "a").exists(), 60), "the first job never started"
-        process.send_signal(signal.SIGINT)
-        started = time.monotonic()
-        assert process.wait(timeout=20) == 130
-        assert time.monotonic() - started < 10
+        ctrl_c(process, wait_s=20)
     finally:
         process.kill()
     assert "Traceback" not in process.stderr.read()
@@ -420,10 +427,8 @@ def test_a_second_ctrl_c_does_not_cut_the_cleanup_short(tmp_path):
 
 def test_ctrl_c_during_trials_exits_130_and_the_run_resumes_with_nothing_lost(tmp_path):
     import json
-    import signal
     import subprocess
     import sys
-    import time
 
     out = tmp_path / "run"
     command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--out", str(out)]
@@ -432,10 +437,7 @@ def test_ctrl_c_during_trials_exits_130_and_the_run_resumes_with_nothing_lost(tm
     try:
         assert wait_for(lambda: trials.is_file() and trials.read_text().count("\n") >= 1, 400), "no trial finished"
         if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-            started = time.monotonic()
-            assert process.wait(timeout=30) == 130
-            assert time.monotonic() - started < 10
+            ctrl_c(process)
             stderr = process.stderr.read()
             assert "Traceback" not in stderr and f"--resume {out}" in one_line_error_text(stderr)
             assert not (out / "summary.json").exists()

@@ -3,11 +3,15 @@ killed driver (issue 13). The runs use `tiny`, or a copy of it with a short mapp
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
+import select
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -15,15 +19,18 @@ import faulty_system  # noqa: F401 - registers the "faulty" system in this proce
 import numpy as np
 import pytest
 import yaml
+from test_robustness import ctrl_c, wait_for
 from typer.testing import CliRunner
 
 from navtopo import geometry as se2
 from runners.cli import app
+from runners.executors import LocalExecutor
 from runners.results import RunDir
 from scenarios import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
-TIMING = {"compute_s", "planning_ms", "planning_ms_samples", "first_plan_ms", "memory"}
+# facts of the execution, not of the outcome: timings, memory figures, where the trial ran
+TIMING = {"compute_s", "planning_ms", "planning_ms_samples", "first_plan_ms", "memory", "worker"}
 HAS_RAY = __import__("importlib.util").util.find_spec("ray") is not None
 
 
@@ -49,6 +56,11 @@ def records_of(run: Path) -> dict[tuple[str, int], dict]:
     keys = [(r["system"], r["trial"]) for r in records]
     assert len(keys) == len(set(keys)), f"a trial recorded twice in {run}"
     return {(r["system"], r["trial"]): r for r in records}
+
+
+def is_loopback(address: str) -> bool:
+    ip = ipaddress.ip_address(address)
+    return (getattr(ip, "ipv4_mapped", None) or ip).is_loopback  # '::ffff:127.0.0.1' too
 
 
 def without_timing(record: dict) -> dict:
@@ -120,9 +132,10 @@ def test_a_mapping_job_that_kills_its_worker_fails_that_system_only(tmp_path):
 # determinism
 
 
-def _run_tiny(out: Path, *flags: str) -> Path:
+def _run_tiny(out: Path, *flags: str, env: dict[str, str] | None = None) -> Path:
     command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle,metric_grid", "--out", str(out), *flags]
-    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    environment = {**os.environ, **(env or {})}
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=environment)
     assert done.returncode == 0, done.stderr[-2000:]
     return out
 
@@ -151,6 +164,150 @@ def test_one_worker_two_workers_and_ray_give_identical_trials_maps_and_trajector
     if not HAS_RAY:
         pytest.skip("Ray is not installed (pip install -e '.[ray]'): compared --workers 1 and 2 only")
     _assert_same_outcomes(one, _run_tiny(tmp_path / "ray", "--executor", "ray", "--workers", "2"))
+
+
+class RecordingExecutor(LocalExecutor):
+    """The local executor, noting when each job starts and ends: (event, kind, seed, time)."""
+
+    opened: list[RecordingExecutor] = []
+
+    def __init__(self, slots: int | None = None) -> None:
+        super().__init__(slots)
+        self.log: list[tuple[str, str, int, float]] = []
+        RecordingExecutor.opened.append(self)
+
+    def _start(self, run) -> None:
+        self.log.append(("start", type(run.job).__name__, run.job.seed, time.monotonic()))
+        super()._start(run)
+
+    def _put(self, run, kind: str, payload) -> None:  # from the thread that reads the job's pipe
+        if kind == "end":
+            self.log.append(("end", type(run.job).__name__, run.job.seed, time.monotonic()))
+        super()._put(run, kind, payload)
+
+
+def _run_two_seeds(results: Path, workers: int, monkeypatch) -> RecordingExecutor:
+    import runners.executors
+
+    RecordingExecutor.opened = []
+    monkeypatch.setattr(runners.executors, "LocalExecutor", RecordingExecutor)
+    args = ["run", "tiny", "--seeds", "1,2", "--systems", "oracle,metric_grid", "--trials", "1", "--workers", str(workers)]
+    result = CliRunner().invoke(app, [*args, "--results", str(results)])
+    assert result.exit_code == 0, result.output
+    assert len(RecordingExecutor.opened) == 1, "one executor for the runs of one command"
+    return RecordingExecutor.opened[0]
+
+
+def _span(log, seed: int, kind: str | None = None) -> tuple[float, float]:
+    """When the first job of ``seed`` (of that kind) started and its last ended."""
+    times = [(event, t) for event, k, s, t in log if s == seed and kind in (None, k)]
+    return min(t for e, t in times if e == "start"), max(t for e, t in times if e == "end")
+
+
+def test_the_runs_of_one_command_overlap_on_one_executor_and_give_the_sequential_outcomes(tmp_path, monkeypatch):
+    """`run tiny --seeds 1,2 --workers 2`: seed 2's jobs start while seed 1's still run, each run's
+    navigation starts once its own maps are in, and the outcomes are those of the runs one after
+    another (--workers 1: with one slot, every job of the first run goes before the second's)."""
+    together = _run_two_seeds(tmp_path / "together", 2, monkeypatch).log
+    assert len([e for e in together if e[0] == "end"]) == len([e for e in together if e[0] == "start"])
+    assert _span(together, 2)[0] < _span(together, 1)[1], "seed 2 waited for seed 1 to end"
+    for seed in (1, 2):
+        assert _span(together, seed, "MappingJob")[1] <= _span(together, seed, "TrialJob")[0]
+    one_by_one = _run_two_seeds(tmp_path / "one_by_one", 1, monkeypatch).log
+    assert _span(one_by_one, 1)[1] <= _span(one_by_one, 2)[0]
+    for seed in (1, 2):
+        [a] = (tmp_path / "together" / "tiny").glob(f"*-s{seed}")
+        [b] = (tmp_path / "one_by_one" / "tiny").glob(f"*-s{seed}")
+        assert sorted(p.relative_to(a) for p in a.rglob("*")) == sorted(p.relative_to(b) for p in b.rglob("*"))
+        _assert_same_outcomes(a, b)
+        assert json.loads((a / "summary.json").read_text()).keys() == {"oracle", "metric_grid"}
+
+
+def test_ctrl_c_during_several_runs_exits_130_naming_each_unfinished_run_and_each_resumes(tmp_path):
+    """Two seeds in flight together; Ctrl-C once a trial is recorded: every job ends, exit 130 in
+    seconds, the one error line names the --resume of each unfinished folder, and each resumes with
+    no trial lost or twice."""
+    path = short_tiny(tmp_path)
+    results = tmp_path / "results"
+    command = [sys.executable, "-m", "runners.cli", "run", str(path), "--seeds", "1,2", "--systems", "oracle"]
+    process = subprocess.Popen(
+        [*command, "--trials", "3", "--workers", "2", "--results", str(results)],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        recorded = wait_for(lambda: any(p.stat().st_size for p in results.glob("tiny/*/trials.jsonl")), 300)
+        assert recorded and process.poll() is None, "no trial recorded, or the runs ended before Ctrl-C"
+        ctrl_c(process)
+    finally:
+        process.kill()
+    errors = [line for line in process.stderr.read().splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith("error: interrupted; finish the run"), errors
+    folders = sorted(p.parent for p in results.glob("tiny/*-s*/manifest.json"))
+    assert len(folders) == 2
+    unfinished = [folder for folder in folders if not (folder / "summary.json").is_file()]
+    assert unfinished and all(f"--resume {folder}" in errors[0] for folder in unfinished)
+    for folder in unfinished:
+        before = {(r["system"], r["trial"]): r for r in RunDir(folder).read_trials()}  # perhaps none yet
+        result = CliRunner().invoke(app, ["run", "--resume", str(folder), "--workers", "2"])
+        assert result.exit_code == 0, result.output
+        after = records_of(folder)
+        assert sorted(after) == [("oracle", 0), ("oracle", 1), ("oracle", 2)]
+        assert all(after[key] == record for key, record in before.items())
+
+
+@pytest.mark.ray
+@pytest.mark.slow
+@pytest.mark.skipif(not HAS_RAY, reason="Ray is not installed (pip install -e '.[ray]')")
+def test_a_two_node_ray_cluster_on_loopback_gives_the_outcomes_of_one_worker_and_uses_both_nodes(tmp_path):
+    """A head and a second node of one CPU each on 127.0.0.1 (``tests/ray_cluster.py``, each node its
+    own raylet); the driver joins it with --ray-address. The trials ran on both nodes, the outcomes
+    are those of --workers 1, every socket of the cluster's processes is on loopback, and none of
+    its processes outlives the test."""
+    import psutil
+
+    temp_dir = tempfile.mkdtemp(prefix="ntb-ray-")  # short: Ray's socket paths must fit 107 bytes
+    helper = subprocess.Popen(
+        [sys.executable, str(ROOT / "tests" / "ray_cluster.py"), temp_dir, "2"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    processes: list[psutil.Process] = []
+    try:
+        ready, _, _ = select.select([helper.stdout], [], [], 120)
+        assert ready, "the cluster did not start within 120 s"
+        cluster = json.loads(helper.stdout.readline())
+        assert cluster["nodes"] == ["127.0.0.1", "127.0.0.1"] and cluster["address"].startswith("127.0.0.1:")
+        on_ray = _run_tiny(
+            tmp_path / "cluster",
+            *("--executor", "ray", "--ray-address", cluster["address"], "--trials", "2"),
+            env={"RAY_TMPDIR": temp_dir},
+        )
+        processes = psutil.Process(helper.pid).children(recursive=True)  # GCS, raylets, agents, workers
+        addresses = {
+            address.ip
+            for process in processes
+            for connection in process.net_connections(kind="inet")
+            for address in (connection.laddr, connection.raddr)
+            if address
+        }
+        assert addresses and all(is_loopback(a) for a in addresses), f"the cluster's processes use {addresses}"
+    finally:
+        helper.stdin.close()  # the helper shuts its nodes down
+        try:
+            helper.wait(timeout=60)
+        finally:
+            helper.kill()
+            shutil.rmtree(temp_dir, ignore_errors=True)
+    _, alive = psutil.wait_procs(processes, timeout=10)
+    assert not alive, f"processes of the test cluster still run: {alive}"
+    _assert_same_outcomes(on_ray, _run_tiny(tmp_path / "w1", "--workers", "1", "--trials", "2"))
+    nodes = {r["worker"]["node"] for r in records_of(on_ray).values()}
+    assert len(nodes) == 2 and None not in nodes, f"the trials ran on {nodes}, not on both nodes"
 
 
 @pytest.mark.ray

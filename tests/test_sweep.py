@@ -87,17 +87,17 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
     monkeypatch.setattr(sweep, "load_scenario", lambda path: loaded.append(path) or path)
     calls = []
 
-    def fake_run(scenario, options):
-        calls.append((scenario.name, options.out, options.resume, options.trials, options.systems))
-        folder = options.out or options.resume
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "manifest.json").write_text("{}")
-        if folder.name != "60m":  # the 60 m run is interrupted: no summary
-            (folder / "summary.json").write_text("{}")
-        return sweep.RunDir(folder)
+    def fake_run_all(todo):
+        for scenario, options in todo:
+            calls.append((scenario.name, options.out, options.resume, options.trials, options.systems))
+            folder = options.out or options.resume
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "manifest.json").write_text("{}")
+            if folder.name != "60m":  # the 60 m run is interrupted: no summary
+                (folder / "summary.json").write_text("{}")
 
     options = ScalingOptions(lengths=[30.0, 60.0], trials=2, out=tmp_path / "sweep")
-    folders = run_scaling(options, fake_run)
+    folders = run_scaling(options, fake_run_all)
     assert folders == [tmp_path / "sweep" / "30m", tmp_path / "sweep" / "60m"]
     assert generated == [30.0, 60.0]
     written = yaml.safe_load((tmp_path / "sweep" / "scenarios" / "scaling_lattice_30m.yaml").read_text())
@@ -105,7 +105,7 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
     assert calls[0] == ("scaling_lattice_30m.yaml", tmp_path / "sweep" / "30m", None, 2, ["navtopo", "metric_grid"])
     # again: 30 m is finished and kept, 60 m resumed; no building generated twice
     calls.clear()
-    run_scaling(options, fake_run)
+    run_scaling(options, fake_run_all)
     assert generated == [30.0, 60.0]
     assert calls == [("scaling_lattice_60m.yaml", None, tmp_path / "sweep" / "60m", 2, ["navtopo", "metric_grid"])]
 
@@ -161,20 +161,20 @@ def test_run_drift_runs_the_scenario_once_per_level_with_that_setting(tmp_path, 
     monkeypatch.setattr(sweep, "load_scenario", lambda name: loaded.append(name) or name)
     calls = []
 
-    def fake_run(scenario, options):
-        calls.append((scenario, options.setting, options.out, options.resume))
-        folder = options.out or options.resume
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "manifest.json").write_text("{}")
-        if options.setting != "strong":
-            (folder / "summary.json").write_text("{}")
-        return sweep.RunDir(folder)
+    def fake_run_all(todo):
+        for scenario, options in todo:
+            calls.append((scenario, options.setting, options.out, options.resume))
+            folder = options.out or options.resume
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "manifest.json").write_text("{}")
+            if options.setting != "strong":
+                (folder / "summary.json").write_text("{}")
 
     options = DriftOptions(scenario="tiny", out=tmp_path / "drift")
-    assert run_drift(options, fake_run) == [tmp_path / "drift" / level for level in ("precise", "noisy", "strong")]
+    assert run_drift(options, fake_run_all) == [tmp_path / "drift" / level for level in ("precise", "noisy", "strong")]
     assert loaded == ["tiny"] and [c[1] for c in calls] == ["precise", "noisy", "strong"]
     calls.clear()
-    run_drift(options, fake_run)
+    run_drift(options, fake_run_all)
     assert calls == [("tiny", "strong", None, tmp_path / "drift" / "strong")]
 
 
