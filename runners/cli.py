@@ -116,6 +116,16 @@ def writable_dir(path: Path, option: str, named: Path | None = None) -> Path:
         fail(f"{option} {named}: {probe} is a file, not a folder")
     if probe.exists() and not os.access(probe, os.W_OK | os.X_OK):
         fail(f"{option} {named}: {probe} is not writable")
+    if probe.is_dir():
+        # os.access says yes to root everywhere: a read-only mount or /sys answers only a real write
+        # (an unnamed file where the system has them, else one removed at once: nothing is left)
+        import tempfile
+
+        try:
+            with tempfile.TemporaryFile(dir=probe):
+                pass
+        except OSError as exc:
+            fail(f"{option} {named}: {probe} is not writable ({exc.strerror or exc})")
     return path
 
 
