@@ -923,7 +923,7 @@ def train_descriptor(
     descriptor: Annotated[str, typer.Option(help="minkloc3d or polar_bev")] = "minkloc3d",
     minutes: Annotated[float, typer.Option(help="training time budget", min=0.1)] = 15.0,
     worlds: Annotated[int, typer.Option(help="generated training worlds (never the bundled scenarios)", min=1)] = 9,
-    threads: Annotated[int | None, typer.Option(help="torch threads (1 is fastest on a shared 2-core machine)")] = 1,
+    threads: Annotated[int | None, typer.Option(help="torch threads (1 is fastest on a shared 2-core machine)", min=1)] = 1,
     data_dir: Annotated[Path, typer.Option(help="cache of generated scans")] = Path("data/place_recognition"),
     out: Annotated[
         Path | None,

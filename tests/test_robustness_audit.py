@@ -14,6 +14,20 @@ from typer.testing import CliRunner
 from runners.cli import app
 
 
+def refused_by_main(monkeypatch, capsys, *args: str) -> str:
+    """The command (its entry point, which makes usage errors one line too) refused with one
+    `error:` line on stderr and exit 2; returns that line."""
+    import sys
+
+    from runners.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["navtopo-bench", *args])
+    code = main()
+    out, err = capsys.readouterr()
+    assert code == 2 and out == "" and len(err.splitlines()) == 1 and err.startswith("error: "), (code, out, err)
+    return err
+
+
 @pytest.fixture
 def read_only() -> Path:
     """A folder this process cannot write: os.access answers yes to root everywhere, so as root
@@ -56,3 +70,8 @@ def test_report_and_plot_graph_into_a_read_only_folder_are_refused(tmp_path, rea
     for args in (["report", str(run), "--out", f"{read_only}/r"], ["plot-graph", str(run), "-o", f"{read_only}/g.png"]):
         assert f"{read_only} is not writable" in one_line_error(CliRunner().invoke(app, args))
     assert not (run / "report").exists()
+
+
+def test_training_threads_below_one_are_refused_before_generating_scans(tmp_path, monkeypatch, capsys):
+    line = refused_by_main(monkeypatch, capsys, "train-descriptor", "--threads", "0", "--data-dir", str(tmp_path / "data"))
+    assert "--threads" in line and list(tmp_path.iterdir()) == []
