@@ -244,15 +244,26 @@ def read_ros_map(
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
         raise ScenarioError(yaml_path, "negate", f"must be 0 or 1 (got {negate!r})")
-    free_thresh = number("free_thresh", meta.get("free_thresh", 0.196))
+    defaults = {"free_thresh": 0.196, "occupied_thresh": 0.65}  # map_server's
+    thresholds = {key: number(key, meta.get(key, default)) for key, default in defaults.items()}
+    for key, value in thresholds.items():
+        if not 0.0 <= value <= 1.0:
+            raise ScenarioError(yaml_path, key, f"must be between 0 and 1, a share of full intensity (got {value})")
+    free_thresh = thresholds["free_thresh"]
+    if free_thresh >= thresholds["occupied_thresh"]:
+        raise ScenarioError(
+            yaml_path, "free_thresh", f"{free_thresh} is not below occupied_thresh {thresholds['occupied_thresh']}"
+        )
     image_path = (yaml_path.parent / str(meta["image"])).resolve()
+    if image_path.is_dir():
+        raise ScenarioError(yaml_path, "image", f"{meta['image']} is a folder, not a map image")
     if not image_path.is_file():
         raise ScenarioError(yaml_path, "image", f"map image {image_path.name} not found next to {yaml_path.name}")
     size = image_size(image_path)  # from the header, before decoding; None: a format Pillow does not read
     try:
         if size is not None:
             check_raster_size((size[1], size[0]), resolution, f"map image {image_path.name}")
-        image = cv2.imread(str(image_path), cv2.IMREAD_UNCHANGED)
+        image = read_image_quietly(image_path)
         if image is None or image.size == 0:
             raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
         check_raster_size(image.shape[:2], resolution, f"map image {image_path.name}")
@@ -269,6 +280,18 @@ def read_ros_map(
         free = p <= free_thresh
     free = free[::-1].copy()  # image row 0 is the largest y
     return free, np.array([origin[0], origin[1]]), resolution
+
+
+def read_image_quietly(path: Path) -> NDArray | None:
+    """``cv2.imread`` (unchanged: depth and channels as stored), None for a file it cannot decode,
+    without OpenCV's own lines on stderr (a truncated PGM prints three): the caller says why."""
+    logging = cv2.utils.logging
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    finally:
+        logging.setLogLevel(level)
 
 
 def image_size(path: Path) -> tuple[int, int] | None:

@@ -8,10 +8,25 @@ import os
 from pathlib import Path
 
 import pytest
-from test_robustness import one_line_error
+from test_robustness import one_line_error, small, write
 from typer.testing import CliRunner
 
 from runners.cli import app
+
+
+def map_scenario(tmp_path: Path, **meta) -> Path:
+    """A scenario on a 4 x 4 m map_server map (free inside a wall border), its YAML keys overridden."""
+    import numpy as np
+    from PIL import Image
+
+    image = np.full((80, 80), 254, np.uint8)
+    image[:2], image[-2:], image[:, :2], image[:, -2:] = 0, 0, 0, 0
+    Image.fromarray(image).save(tmp_path / "m.pgm")
+    keys = {"image": "m.pgm", "resolution": 0.05, "origin": [0.0, 0.0, 0.0], "occupied_thresh": 0.65, "free_thresh": 0.25}
+    keys.update(meta)
+    (tmp_path / "m.yaml").write_text("".join(f"{key}: {value}\n" for key, value in keys.items()))
+    spec = small(world={"map": {"yaml": "m.yaml"}}, mapping_route={"waypoints": [[1, 1], [3, 3]]}, trials=[])
+    return write(tmp_path, spec)
 
 
 def refused_by_main(monkeypatch, capsys, *args: str) -> str:
@@ -40,6 +55,55 @@ def read_only() -> Path:
         return Path("/sys")
     Path("/sys/navtopo-probe").unlink()
     pytest.skip("/sys is writable here")
+
+
+# ---------------------------------------------------------------------------------------------
+# map_server maps
+
+
+@pytest.mark.parametrize(
+    ("meta", "key", "reason"),
+    [
+        ({"occupied_thresh": 2}, "occupied_thresh", "between 0 and 1"),
+        ({"occupied_thresh": "high"}, "occupied_thresh", "finite number"),
+        ({"free_thresh": 1.5}, "free_thresh", "between 0 and 1"),  # every unknown pixel would be free
+        ({"free_thresh": -0.1}, "free_thresh", "between 0 and 1"),
+        ({"free_thresh": 0.9}, "free_thresh", "not below occupied_thresh 0.65"),
+        ({"image": "."}, "image", "is a folder"),
+    ],
+)
+def test_a_map_yaml_out_of_map_servers_ranges_is_refused_naming_its_key(tmp_path, meta, key, reason):
+    from scenarios import ScenarioError, load_scenario
+
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(map_scenario(tmp_path, **meta))
+    message = str(info.value)
+    assert message.startswith(f"{tmp_path / 'm.yaml'}: {key}: ") and reason in message, message
+
+
+def test_the_default_thresholds_and_an_rgba_png_load(tmp_path):
+    import numpy as np
+    from PIL import Image
+
+    from scenarios import load_scenario
+
+    path = map_scenario(tmp_path)
+    grey = np.asarray(Image.open(tmp_path / "m.pgm"))
+    Image.fromarray(np.dstack([grey, grey, grey, np.full_like(grey, 255)]), "RGBA").save(tmp_path / "m.png")
+    free = load_scenario(path).world.free.sum()
+    (tmp_path / "m.yaml").write_text("image: m.png\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    assert load_scenario(path).world.free.sum() == free
+
+
+def test_a_truncated_map_image_is_our_one_line_without_opencvs_own(tmp_path, capfd):
+    from scenarios import ScenarioError, load_scenario
+
+    path = map_scenario(tmp_path)
+    data = (tmp_path / "m.pgm").read_bytes()
+    (tmp_path / "m.pgm").write_bytes(data[: len(data) // 3])
+    with pytest.raises(ScenarioError, match="image: cannot decode map image m.pgm"):
+        load_scenario(path)
+    assert "ERROR" not in capfd.readouterr().err  # OpenCV prints three lines of its own by default
 
 
 # ---------------------------------------------------------------------------------------------
