@@ -65,10 +65,17 @@ def pack_dir(folder: Path) -> bytes:
 
 
 def unpack_dir(data: bytes, folder: Path) -> Path:
-    """Extract an archive of ``pack_dir`` into ``folder`` (plain files and folders only)."""
+    """Extract an archive of ``pack_dir`` into ``folder`` (plain files and folders only), with the
+    modes of files this process creates (the user's umask), as every other results file."""
     folder.mkdir(parents=True, exist_ok=True)
+
+    def data_with_umask(member: tarfile.TarInfo, path: str) -> tarfile.TarInfo:
+        # the "data" filter's checks, but its mode (group write dropped) is not kept: mode None
+        # skips the chmod, so a file is as open() and mkdir() make it
+        return tarfile.data_filter(member, path).replace(mode=None, deep=False)
+
     with tarfile.open(fileobj=io.BytesIO(data), mode="r") as archive:
-        archive.extractall(folder, filter="data")
+        archive.extractall(folder, filter=data_with_umask)
     return folder
 
 

@@ -139,3 +139,22 @@ def test_report_and_plot_graph_into_a_read_only_folder_are_refused(tmp_path, rea
 def test_training_threads_below_one_are_refused_before_generating_scans(tmp_path, monkeypatch, capsys):
     line = refused_by_main(monkeypatch, capsys, "train-descriptor", "--threads", "0", "--data-dir", str(tmp_path / "data"))
     assert "--threads" in line and list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# files
+
+
+@pytest.mark.parametrize("umask", [0o002, 0o022, 0o077])
+def test_a_map_installed_from_its_job_has_the_users_umask_too(tmp_path, umask):
+    from runners.payload import install_dir, pack_dir
+
+    (tmp_path / "made" / "grids").mkdir(parents=True)
+    (tmp_path / "made" / "grids" / "000000.png").write_bytes(b"png")
+    old = os.umask(umask)
+    try:
+        install_dir(pack_dir(tmp_path / "made"), tmp_path / "maps")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "maps" / "grids").stat().st_mode & 0o777 == 0o777 & ~umask
+    assert (tmp_path / "maps" / "grids" / "000000.png").stat().st_mode & 0o777 == 0o666 & ~umask
