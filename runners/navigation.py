@@ -215,7 +215,9 @@ def trial_job(job: TrialJob) -> Iterator[dict[str, Any]]:
             try:
                 system = entry.load(map_dir, config, context)
             except Exception as exc:  # noqa: BLE001 - whatever the format's reader raises
-                message = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+                # the job's copy of the map is a temporary folder, gone when the user reads this:
+                # name it as the run folder does
+                message = f"{type(exc).__name__}: {exc}".replace(str(map_dir), f"maps/{job.system}").splitlines()[0][:300]
                 yield {"kind": "map_load_error", "detail": message}
                 return
             map_load_ms = (time.perf_counter() - t0) * 1e3

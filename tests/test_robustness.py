@@ -478,6 +478,7 @@ def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_pat
     )
     line = one_line_error(result, code=1)
     assert "navigation stage failed" in line and "oracle: the map in " in line and f"--resume {second}" in line
+    assert "maps/oracle: not an oracle map folder" in line and "navtopo-job" not in line  # not the job's temporary copy
     assert not (second / "trials.jsonl").exists() or not (second / "trials.jsonl").read_text().strip()
     assert not (second / "summary.json").exists()  # unfinished: `report` refuses it, --resume retries
 
