@@ -347,7 +347,7 @@ class Run:
                 raise RunFormatError(f"{summary_path}: expected an object keyed by system")
             summary = {name: _validate(SystemSummary, value, summary_path, name) for name, value in data.items()}
         elif require_summary:
-            raise RunFormatError(f"{root}: not a finished run folder (summary.json missing)")
+            raise RunFormatError(f"{root}: not a finished run folder (summary.json missing): `run --resume {root}` finishes it")
         else:
             missing.append("summary.json")
         trials_path = root / "trials.jsonl"

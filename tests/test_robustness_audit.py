@@ -158,3 +158,26 @@ def test_a_map_installed_from_its_job_has_the_users_umask_too(tmp_path, umask):
         os.umask(old)
     assert (tmp_path / "maps" / "grids").stat().st_mode & 0o777 == 0o777 & ~umask
     assert (tmp_path / "maps" / "grids" / "000000.png").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+# ---------------------------------------------------------------------------------------------
+# report, eval-place-recognition
+
+
+def test_a_run_folder_named_twice_is_counted_once(tmp_path):
+    from crafted_run import write_crafted_run
+
+    run = write_crafted_run(tmp_path / "20260101-000000-s1")
+    (tmp_path / "latest").symlink_to(run.name)  # what `report results/tiny/*` also names
+    result = CliRunner().invoke(app, ["report", str(run), str(tmp_path / "latest")])
+    assert result.exit_code == 0, result.output
+    assert f"note: {tmp_path / 'latest'} is the run folder {run}: counted once" in result.output
+    assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text()  # navtopo's six trials, not twelve
+
+
+def test_a_report_of_an_interrupted_run_says_how_to_finish_it(tmp_path):
+    from crafted_run import write_crafted_run
+
+    run = write_crafted_run(tmp_path / "run")
+    (run / "summary.json").unlink()
+    assert f"`run --resume {run}` finishes it" in one_line_error(CliRunner().invoke(app, ["report", str(run)]))
