@@ -1006,7 +1006,11 @@ def eval_place_recognition(
     for column in ("descriptor", "recall@1", "recall@5", "queries"):
         table.add_column(column)
     for name, r in results.items():
-        table.add_row(name, str(r.get("recall_at_1", r.get("error"))), str(r.get("recall_at_5", "")), str(r.get("queries", "")))
+        if "error" in r:
+            table.add_row(name, escape(str(r["error"])), "", "")
+            continue
+        recalls = [r.get(key) for key in ("recall_at_1", "recall_at_5")]
+        table.add_row(name, *["–" if v is None else f"{v:.3f}" for v in recalls], str(r.get("queries", "")))
     console.print(table)
 
 

@@ -181,3 +181,13 @@ def test_a_report_of_an_interrupted_run_says_how_to_finish_it(tmp_path):
     run = write_crafted_run(tmp_path / "run")
     (run / "summary.json").unlink()
     assert f"`run --resume {run}` finishes it" in one_line_error(CliRunner().invoke(app, ["report", str(run)]))
+
+
+def test_the_recall_table_is_rounded(monkeypatch):
+    import runners.place_recognition_data as data
+
+    recalls = {"scan_context": {"recall_at_1": 0.9574468085106383, "recall_at_5": 1.0, "queries": 47}}
+    monkeypatch.setattr(data, "evaluate_scenario", lambda *args, **kwargs: recalls)
+    result = CliRunner().invoke(app, ["eval-place-recognition", "tiny", "--descriptors", "scan_context"])
+    assert result.exit_code == 0, result.output
+    assert "0.957" in result.output and "0.9574" not in result.output and "1.000" in result.output
