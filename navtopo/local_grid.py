@@ -34,6 +34,7 @@ is acceptable.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -49,6 +50,9 @@ FREE = 1
 OCCUPIED = 2
 
 Grid = NDArray[np.uint8]
+
+
+MAX_GRID_SIZE = 4096  # cells a side of a location grid (300 by default): 16 MB a grid at most
 
 
 class GridConfig(BaseModel):
@@ -85,6 +89,18 @@ class GridConfig(BaseModel):
     def _band_not_empty(self) -> GridConfig:
         if self.ceiling_height <= self.floor_height:
             raise ValueError(f"ceiling_height ({self.ceiling_height}) must be above floor_height ({self.floor_height})")
+        return self
+
+    @model_validator(mode="after")
+    def _size_bounded(self) -> GridConfig:
+        # every location keeps a grid: a resolution of a micrometre would pass validation and then
+        # fail the mapping stage on an array it cannot allocate
+        half = self.radius / self.resolution
+        if not (math.isfinite(half) and 2 <= 2 * round(half) <= MAX_GRID_SIZE):
+            raise ValueError(
+                f"radius {self.radius} m at resolution {self.resolution} m is a grid of {2 * half:.3g} cells a side "
+                f"(2 to {MAX_GRID_SIZE} allowed)"
+            )
         return self
 
     @property

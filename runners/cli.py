@@ -486,7 +486,7 @@ def _read_overrides(path: Path, names: list[str]) -> dict:
         except ValidationError as exc:
             first = exc.errors()[0]
             key = ".".join(str(p) for p in first["loc"])
-            fail(f"--config {path}: {name}.{key}: {first['msg']}")
+            fail(f"--config {path}: {name}.{key}: {first['msg'].removeprefix('Value error, ')}")
     return data
 
 

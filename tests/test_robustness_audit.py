@@ -191,3 +191,24 @@ def test_the_recall_table_is_rounded(monkeypatch):
     result = CliRunner().invoke(app, ["eval-place-recognition", "tiny", "--descriptors", "scan_context"])
     assert result.exit_code == 0, result.output
     assert "0.957" in result.output and "0.9574" not in result.output and "1.000" in result.output
+
+
+# ---------------------------------------------------------------------------------------------
+# configs that validate and then fail the mapping stage
+
+
+@pytest.mark.parametrize(
+    ("config", "reason"),
+    [
+        ("navtopo: {grid: {resolution: 1e-300}}", "navtopo.grid: radius 15.0 m at resolution 1e-300 m"),
+        ("navtopo: {grid: {radius: .inf}}", "navtopo.grid: radius inf m"),
+        ("navtopo: {grid: {radius: 0.05}}", "(2 to 4096 allowed)"),
+        ("metric_grid: {occupancy: {resolution: 0.001}}", "metric_grid.occupancy.resolution: "),
+    ],
+)
+def test_a_grid_no_machine_holds_is_refused_before_the_run_folder(tmp_path, config, reason):
+    (tmp_path / "c.yaml").write_text(config + "\n")
+    results = tmp_path / "results"
+    args = ["run", "tiny", "--systems", "navtopo,metric_grid", "--results", str(results), "--config", str(tmp_path / "c.yaml")]
+    line = one_line_error(CliRunner().invoke(app, args))
+    assert reason in line and "Value error" not in line and not results.exists()

@@ -43,7 +43,7 @@ PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
 class OccupancyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
-    resolution: float = Field(0.1, gt=0.0, description="metres per cell")
+    resolution: float = Field(0.1, ge=0.01, le=10.0, description="metres per cell (a finer grid of a building outgrows memory)")
     max_range: float = Field(15.0, description="m; the lidar's range, sizes the tracing window")
     log_odds_hit: float = Field(0.85, description="p = 0.7 (OctoMap)")
     log_odds_miss: float = Field(-0.4, description="p = 0.4 (OctoMap)")
