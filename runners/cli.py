@@ -840,6 +840,7 @@ def sweep_scaling(
         fail(f"--setting: unknown setting {setting!r} (choose from {', '.join(SETTINGS)})")
     if building not in ("lattice", "tree"):
         fail(f"--building: {building!r} is not lattice or tree")
+    writable_dir(out, "--out")
     options = ScalingOptions(
         building=building,
         lengths=length_list,
@@ -886,6 +887,7 @@ def sweep_drift(
     if unknown:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
     _load(scenario)  # a bad scenario is one line before any work
+    writable_dir(out, "--out")
     options = DriftOptions(
         scenario=scenario,
         levels=level_list,
