@@ -522,6 +522,9 @@ class _RunProgress:
             if self.mapping_task is not None:
                 self.progress.update(self.mapping_task, completed=route_m)
             self.trial_task = self.progress.add_task(f"[cyan]{escape(self.label)}[/] trials", total=value)
+        elif stage == "done" and self.mapping_task is not None and self.trial_task is None:
+            # --trials 0: no navigation stage completes the mapping bar
+            self.progress.update(self.mapping_task, completed=route_m)
 
     def on_mapping(self, travelled: float, total: float) -> None:
         if self.mapping_task is not None:
