@@ -618,7 +618,10 @@ def _report_outcomes(shown: list[_RunProgress], outcomes: list) -> None:
             failures.append(f"navigation stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
             continue
         if read_json(run_dir.manifest_path).get("trial_count") == 0:
-            console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+            if run.scenario.trials:
+                console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+            else:
+                console.print(f"mapped, no trials run: {run.scenario.path} lists no trials")
         else:
             print_summary(run_dir.root)
         console.print(f"results: [bold]{run_dir.root}[/]")

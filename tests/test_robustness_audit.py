@@ -161,6 +161,18 @@ def test_a_map_installed_from_its_job_has_the_users_umask_too(tmp_path, umask):
 
 
 # ---------------------------------------------------------------------------------------------
+# runs
+
+
+def test_a_scenario_without_trials_maps_and_says_why_none_ran(tmp_path):
+    spec = small()
+    del spec["trials"]
+    result = CliRunner().invoke(app, ["run", str(write(tmp_path, spec)), "--systems", "oracle", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert f"mapped, no trials run: {tmp_path / 's.yaml'} lists no trials" in result.output and "--trials 0" not in result.output
+
+
+# ---------------------------------------------------------------------------------------------
 # report, eval-place-recognition
 
 
