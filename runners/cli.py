@@ -206,14 +206,7 @@ def run(
     _check_executor(executor, ray_address)
     limits = {"trial_wall_s": trial_timeout, "trial_memory_mb": trial_memory_mb}
     known = system_names()
-    names = [s.strip() for s in systems.split(",") if s.strip()]
-    unknown = [s for s in names if s not in known]
-    if unknown and resume is None:
-        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
-    if not names and resume is None:
-        fail(f"--systems {systems!r}: give at least one system (available: {', '.join(sorted(known))})")
-    if len(set(names)) < len(names) and resume is None:
-        fail(f"--systems {systems!r}: a system is named twice")
+    names = _systems_option(systems) if resume is None else []  # a resume runs the manifest's systems
     from runners.protocol import SETTINGS, TrialProtocol
 
     setting_list: list[str | None] = [None]
@@ -359,6 +352,22 @@ def run(
     ]
     with _executor(todo[0][1]) as pool:
         _run_all(todo, pool)
+
+
+def _systems_option(systems: str) -> list[str]:
+    """The names of ``--systems``: known, at least one, none twice (else one line, exit 2)."""
+    from runners.systems import system_names
+
+    known = system_names()
+    names = [s.strip() for s in systems.split(",") if s.strip()]
+    unknown = [s for s in names if s not in known]
+    if unknown:
+        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
+    if not names:
+        fail(f"--systems {systems!r}: give at least one system (available: {', '.join(sorted(known))})")
+    if len(set(names)) < len(names):
+        fail(f"--systems {systems!r}: a system is named twice")
+    return names
 
 
 def _run_suite(path: Path, out: Path, config_file: Path | None, common: dict) -> None:
@@ -522,6 +531,9 @@ class _RunProgress:
             if self.mapping_task is not None:
                 self.progress.update(self.mapping_task, completed=route_m)
             self.trial_task = self.progress.add_task(f"[cyan]{escape(self.label)}[/] trials", total=value)
+        elif stage == "done" and self.mapping_task is not None and self.trial_task is None:
+            # --trials 0: no navigation stage completes the mapping bar
+            self.progress.update(self.mapping_task, completed=route_m)
 
     def on_mapping(self, travelled: float, total: float) -> None:
         if self.mapping_task is not None:
@@ -606,7 +618,10 @@ def _report_outcomes(shown: list[_RunProgress], outcomes: list) -> None:
             failures.append(f"navigation stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
             continue
         if read_json(run_dir.manifest_path).get("trial_count") == 0:
-            console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+            if run.scenario.trials:
+                console.print(f"mapped, no trials run (--trials 0): navigate these maps with --maps-from {run_dir.root}")
+            else:
+                console.print(f"mapped, no trials run: {run.scenario.path} lists no trials")
         else:
             print_summary(run_dir.root)
         console.print(f"results: [bold]{run_dir.root}[/]")
@@ -795,6 +810,11 @@ def config(system: Annotated[str | None, typer.Argument(help="a system name; all
 # ---------------------------------------------------------------------------------------------
 # studies
 
+# generating a 10 km building takes about 40 s and grows faster than the length; a building
+# whose raster is too large is refused by the scenario's own size check before any run
+MIN_SWEEP_LENGTH_M, MAX_SWEEP_LENGTH_M = 20.0, 10_000.0
+MAX_SWEEP_TRIALS = 10_000  # trials.generate.count's bound
+
 sweep_app = typer.Typer(help="Studies over generated sizes (scaling) and odometry noise (drift).", no_args_is_help=True)
 app.add_typer(sweep_app, name="sweep")
 
@@ -803,8 +823,8 @@ app.add_typer(sweep_app, name="sweep")
 def sweep_scaling(
     lengths: Annotated[str, typer.Option(help="total corridor lengths (m) of the generated buildings")] = "150,300,600,1200,2400",
     systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
-    trials: Annotated[int, typer.Option(help="navigation trials per size", min=0)] = 5,
-    seed: Annotated[int, typer.Option(help="seed of the generated buildings")] = 31,
+    trials: Annotated[int, typer.Option(help="navigation trials per size", min=1, max=MAX_SWEEP_TRIALS)] = 5,
+    seed: Annotated[int, typer.Option(help="seed of the generated buildings", min=0)] = 31,
     building: Annotated[str, typer.Option(help="lattice (corridors round blocks: loops) or tree")] = "lattice",
     route_factor: Annotated[
         float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
@@ -824,18 +844,21 @@ def sweep_scaling(
     the log-log plot, and the usual tables, plots and report.html of all the runs."""
     from runners.protocol import SETTINGS
     from runners.sweep import ScalingOptions, run_scaling
-    from runners.systems import system_names
+    from scenarios.schema import MAX_ROUTE_M
 
     try:
         length_list = [float(v) for v in lengths.split(",") if v.strip()]
-        if not length_list or min(length_list) < 20.0:
+        if not length_list or not all(MIN_SWEEP_LENGTH_M <= v <= MAX_SWEEP_LENGTH_M for v in length_list):
             raise ValueError
     except ValueError:
-        fail(f"--lengths: expected comma-separated lengths of at least 20 m, got {lengths!r}")
-    names = [s.strip() for s in systems.split(",") if s.strip()]
-    unknown = [s for s in names if s not in system_names()]
-    if unknown:
-        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
+        fail(
+            f"--lengths: expected comma-separated lengths of {MIN_SWEEP_LENGTH_M:g} to {MAX_SWEEP_LENGTH_M:g} m, got {lengths!r}"
+        )
+    if len({round(v) for v in length_list}) < len(length_list):
+        fail(f"--lengths {lengths!r}: a length is given twice (to the metre: each has its folder <length>m)")
+    if not (math.isfinite(route_factor) and route_factor * max(length_list) <= MAX_ROUTE_M):
+        fail(f"--route-factor {route_factor}: the route of the {max(length_list):g} m building would pass {MAX_ROUTE_M:g} m")
+    names = _systems_option(systems)
     if setting not in SETTINGS:
         fail(f"--setting: unknown setting {setting!r} (choose from {', '.join(SETTINGS)})")
     if building not in ("lattice", "tree"):
@@ -854,6 +877,7 @@ def sweep_scaling(
         ray_address=ray_address,
         out=out,
     )
+    writable_dir(out, "--out")
     folders = _run_sweep(options, run_scaling)
     _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
 
@@ -863,7 +887,7 @@ def sweep_drift(
     scenario: Annotated[str, typer.Argument(help="bundled name or YAML file")] = "loop_office",
     levels: Annotated[str, typer.Option(help="odometry-noise settings in order: off, moderate, strong")] = "precise,noisy,strong",
     systems: Annotated[str, typer.Option(help="comma-separated systems")] = "navtopo,metric_grid",
-    trials: Annotated[int, typer.Option(help="navigation trials per level", min=0)] = 5,
+    trials: Annotated[int, typer.Option(help="navigation trials per level", min=1, max=MAX_SWEEP_TRIALS)] = 5,
     workers: WorkersOption = None,
     executor: ExecutorOption = "local",
     ray_address: RayAddressOption = None,
@@ -876,16 +900,15 @@ def sweep_drift(
     the strongest drift over the GT map beside the graph of locations) and the usual report."""
     from runners.protocol import SETTINGS
     from runners.sweep import DriftOptions, run_drift
-    from runners.systems import system_names
 
     level_list = [v.strip() for v in levels.split(",") if v.strip()]
     bad = [v for v in level_list if v not in SETTINGS]
     if bad or not level_list:
         fail(f"--levels: unknown setting(s) {', '.join(bad) or repr(levels)} (choose from {', '.join(SETTINGS)})")
-    names = [s.strip() for s in systems.split(",") if s.strip()]
-    unknown = [s for s in names if s not in system_names()]
-    if unknown:
-        fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(system_names()))})")
+    if len(set(level_list)) < len(level_list):
+        fail(f"--levels {levels!r}: a level is named twice")
+    names = _systems_option(systems)
+    writable_dir(out, "--out")
     _load(scenario)  # a bad scenario is one line before any work
     writable_dir(out, "--out")
     options = DriftOptions(
@@ -903,10 +926,21 @@ def sweep_drift(
 
 
 def _run_sweep(options, run_sweep) -> list[Path]:
-    """Every run of a sweep on one executor, in flight together (one Ray instance for the whole sweep)."""
+    """Every run of a sweep on one executor, in flight together (one Ray instance for the whole
+    sweep), opened once the sweep has generated and checked its buildings and kept runs."""
+    from runners.sweep import SweepError
+
     _check_executor(options.executor, options.ray_address)
-    with _executor(options) as pool:
-        return run_sweep(options, lambda todo: _run_all(todo, pool, again="run the same command again to finish the sweep"))
+
+    def run_all(todo: list) -> None:
+        if todo:
+            with _executor(options) as pool:
+                _run_all(todo, pool, again="run the same command again to finish the sweep")
+
+    try:
+        return run_sweep(options, run_all)
+    except SweepError as exc:  # raised before the sweep's first run starts
+        fail(str(exc))
 
 
 def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> None:

@@ -133,7 +133,8 @@ def new_run_dir(options: RunOptions, scenario: Scenario, seed: int) -> RunDir:
 class RunHooks:
     """What a run tells its caller as it goes (each optional).
 
-    on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count);
+    on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count),
+    ("done", RunDir) once its summary is written;
     on_mapping(travelled_m, route_m): the slowest mapping drive; on_trial(record): a trial recorded."""
 
     on_stage: Callable[[str, Any], None] | None = None
@@ -269,6 +270,7 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
     if run.failed_stages:
         return run  # no summary: the run is unfinished, and --resume retries the stage
     write_summary(run, systems, mapping)
+    say("done", run)
     return run
 
 

@@ -181,17 +181,35 @@ def polygon_segments(geometry: Polygon | MultiPolygon) -> NDArray[np.float64]:
     return np.concatenate(segments, axis=0) if segments else np.zeros((0, 2, 2))
 
 
-def shape_world(spec: WorldSpec) -> World:
-    structure = unary_union(
-        [corridor_polygon(c.points, c.width) for c in spec.corridors] + [rectangle(r.center, r.size, r.yaw) for r in spec.rooms]
-    )
-    obstacle_polys = [rectangle(o.center, o.size, o.yaw) for o in spec.obstacles]
-    free_geometry = structure.difference(unary_union(obstacle_polys)) if obstacle_polys else structure
-    xmin, ymin, xmax, ymax = structure.bounds
-    res = spec.resolution
+def _shapes(spec: WorldSpec) -> list[Polygon]:
+    """The corridors and rooms of a shape world (their union is its free space before obstacles)."""
+    corridors = [corridor_polygon(c.points, c.width) for c in spec.corridors]
+    return corridors + [rectangle(r.center, r.size, r.yaw) for r in spec.rooms]
+
+
+def _raster_frame(bounds: tuple[float, float, float, float], res: float) -> tuple[NDArray[np.float64], tuple[int, int]]:
+    """Origin and shape of a shape world's raster over the shapes' ``bounds``, padded; refused
+    (``ValueError``) if too large."""
+    xmin, ymin, xmax, ymax = bounds
     origin = np.array([np.floor((xmin - PADDING_M) / res) * res, np.floor((ymin - PADDING_M) / res) * res])
     shape = (int(np.ceil((ymax + PADDING_M - origin[1]) / res)), int(np.ceil((xmax + PADDING_M - origin[0]) / res)))
     check_raster_size(shape, res)
+    return origin, shape
+
+
+def check_shape_world_size(spec: WorldSpec) -> None:
+    """The size check of ``shape_world``, from the shapes' bounds alone (nothing is rasterized or
+    merged): ``ValueError`` for a world too large, e.g. a generated building before it is written."""
+    bounds = np.array([shape.bounds for shape in _shapes(spec)])
+    _raster_frame((*bounds[:, :2].min(axis=0), *bounds[:, 2:].max(axis=0)), spec.resolution)
+
+
+def shape_world(spec: WorldSpec) -> World:
+    structure = unary_union(_shapes(spec))
+    obstacle_polys = [rectangle(o.center, o.size, o.yaw) for o in spec.obstacles]
+    free_geometry = structure.difference(unary_union(obstacle_polys)) if obstacle_polys else structure
+    res = spec.resolution
+    origin, shape = _raster_frame(structure.bounds, res)
     return World(
         resolution=res,
         origin=origin,

@@ -472,6 +472,8 @@ def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_pat
     assert result.exit_code == 0, result.output
     assert f"no trials run (--trials 0): navigate these maps with --maps-from {first}" in result.output
     assert "success" not in result.output  # no empty table
+    route_m = round(load_scenario("tiny", with_trials=False).route_length_m)
+    assert f"{route_m}/{route_m}" in result.output  # the mapping bar ends full, with no trials to fill it
     (first / "maps" / "oracle" / "oracle.json").unlink()  # a damaged map folder
     result = CliRunner().invoke(
         app, ["run", "tiny", "--systems", "oracle", "--trials", "2", "--maps-from", str(first), "--out", str(second)]

@@ -161,6 +161,18 @@ def test_a_map_installed_from_its_job_has_the_users_umask_too(tmp_path, umask):
 
 
 # ---------------------------------------------------------------------------------------------
+# runs
+
+
+def test_a_scenario_without_trials_maps_and_says_why_none_ran(tmp_path):
+    spec = small()
+    del spec["trials"]
+    result = CliRunner().invoke(app, ["run", str(write(tmp_path, spec)), "--systems", "oracle", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert f"mapped, no trials run: {tmp_path / 's.yaml'} lists no trials" in result.output and "--trials 0" not in result.output
+
+
+# ---------------------------------------------------------------------------------------------
 # report, eval-place-recognition
 
 
@@ -212,3 +224,63 @@ def test_a_grid_no_machine_holds_is_refused_before_the_run_folder(tmp_path, conf
     args = ["run", "tiny", "--systems", "navtopo,metric_grid", "--results", str(results), "--config", str(tmp_path / "c.yaml")]
     line = one_line_error(CliRunner().invoke(app, args))
     assert reason in line and "Value error" not in line and not results.exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# sweeps
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (["scaling", "--lengths", "nan"], "--lengths: expected"),
+        (["scaling", "--lengths", "inf"], "--lengths: expected"),
+        (["scaling", "--lengths", "1e9"], "--lengths: expected"),
+        (["scaling", "--lengths", "20"], "--lengths 20: no lattice"),
+        (["scaling", "--lengths", "150,150.2"], "given twice"),
+        (["scaling", "--building", "tree", "--lengths", "4000"], "--lengths 4000: a raster of"),
+        (["scaling", "--route-factor", "inf"], "--route-factor inf"),
+        (["scaling", "--systems", ""], "at least one system"),
+        (["scaling", "--systems", "navtopo,navtopo"], "named twice"),
+        (["scaling", "--seed", "-1"], "--seed"),
+        (["scaling", "--trials", "0"], "--trials"),
+        (["drift", "tiny", "--levels", "precise,precise"], "named twice"),
+        (["drift", "tiny", "--systems", ""], "at least one system"),
+        (["drift", "tiny", "--trials", "0"], "--trials"),
+    ],
+)
+def test_a_sweep_refuses_bad_flags_before_creating_anything(tmp_path, monkeypatch, capsys, args, reason):
+    line = refused_by_main(monkeypatch, capsys, "sweep", *args, "--out", str(tmp_path / "sweep"))
+    assert reason in line and not (tmp_path / "sweep").exists()
+
+
+def test_a_sweep_never_keeps_another_sweeps_run_as_its_own(tmp_path):
+    import json
+
+    from runners.sweep import DriftOptions, ScalingOptions, SweepError, run_drift, scaling_scenario_files
+
+    # `sweep drift tiny`, then `sweep drift loop_office` into the same folder
+    (tmp_path / "drift" / "precise").mkdir(parents=True)
+    manifest = {"scenario": {"name": "tiny"}, "systems": ["navtopo", "metric_grid"], "trial_count": 3, "setting": "precise"}
+    (tmp_path / "drift" / "precise" / "manifest.json").write_text(json.dumps(manifest))
+    (tmp_path / "drift" / "precise" / "summary.json").write_text("{}")
+    ran = []
+    with pytest.raises(SweepError, match="holds a run of tiny, precise, systems metric_grid,navtopo, 3 trials; this sweep asks"):
+        run_drift(DriftOptions(scenario="loop_office", out=tmp_path / "drift"), lambda *args: ran.append(args))
+    assert ran == []
+    # `sweep scaling --seed 5` where a seed-31 building was generated
+    options = ScalingOptions(lengths=[150.0], out=tmp_path / "scaling")
+    (building,) = scaling_scenario_files(options)
+    text = building.read_text()
+    options.seed = 5
+    with pytest.raises(SweepError, match=r"an earlier sweep's building, seed 31 \(asked 5\)"):
+        scaling_scenario_files(options)
+    assert building.read_text() == text
+
+
+def test_a_sweep_checks_an_existing_folder_before_any_run(tmp_path):
+    (tmp_path / "sweep" / "precise").mkdir(parents=True)
+    (tmp_path / "sweep" / "precise" / "manifest.json").write_text('{"scenario": {"name": "loop_office"}}')
+    result = CliRunner().invoke(app, ["sweep", "drift", "tiny", "--out", str(tmp_path / "sweep")])
+    assert "holds a run of loop_office" in one_line_error(result)
+    assert sorted(p.name for p in (tmp_path / "sweep").rglob("*")) == ["manifest.json", "precise"]

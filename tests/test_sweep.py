@@ -79,8 +79,11 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
     generated = []
 
     def fake_tree(length, **kwargs):
+        from scenarios.generators import scenario_dict
+
         generated.append(length)
-        return {"name": kwargs["name"], "length": length}
+        corridor = {"points": [[0.0, 0.0], [length, 0.0]], "width": 2.0}
+        return scenario_dict(kwargs["name"], "a corridor", kwargs["seed"], [corridor], [], [], length, kwargs["trials"], 1.0)
 
     loaded = []
     monkeypatch.setitem(sweep.GENERATORS, "lattice", fake_tree)
@@ -101,7 +104,7 @@ def test_run_scaling_writes_each_building_once_and_resumes_an_unfinished_size(tm
     assert folders == [tmp_path / "sweep" / "30m", tmp_path / "sweep" / "60m"]
     assert generated == [30.0, 60.0]
     written = yaml.safe_load((tmp_path / "sweep" / "scenarios" / "scaling_lattice_30m.yaml").read_text())
-    assert written == {"name": "scaling_lattice_30m", "length": 30.0}
+    assert written["name"] == "scaling_lattice_30m" and written["world"]["corridors"][0]["points"][1] == [30.0, 0.0]
     assert calls[0] == ("scaling_lattice_30m.yaml", tmp_path / "sweep" / "30m", None, 2, ["navtopo", "metric_grid"])
     # again: 30 m is finished and kept, 60 m resumed; no building generated twice
     calls.clear()
@@ -155,15 +158,17 @@ def test_the_drift_study_reports_each_level_and_draws_figure_1(tmp_path):
 
 
 def test_run_drift_runs_the_scenario_once_per_level_with_that_setting(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
     import runners.sweep as sweep
 
     loaded = []
-    monkeypatch.setattr(sweep, "load_scenario", lambda name: loaded.append(name) or name)
+    monkeypatch.setattr(sweep, "load_scenario", lambda name: loaded.append(name) or SimpleNamespace(name=name, trials=[{}] * 5))
     calls = []
 
     def fake_run_all(todo):
         for scenario, options in todo:
-            calls.append((scenario, options.setting, options.out, options.resume))
+            calls.append((scenario.name, options.setting, options.out, options.resume))
             folder = options.out or options.resume
             folder.mkdir(parents=True, exist_ok=True)
             (folder / "manifest.json").write_text("{}")
