@@ -877,7 +877,6 @@ def sweep_scaling(
         ray_address=ray_address,
         out=out,
     )
-    writable_dir(out, "--out")
     folders = _run_sweep(options, run_scaling)
     _sweep_report(folders, out / "report", "scaling", "Scaling: planning time and memory against environment size")
 
@@ -910,7 +909,6 @@ def sweep_drift(
     names = _systems_option(systems)
     writable_dir(out, "--out")
     _load(scenario)  # a bad scenario is one line before any work
-    writable_dir(out, "--out")
     options = DriftOptions(
         scenario=scenario,
         levels=level_list,
