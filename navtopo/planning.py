@@ -33,7 +33,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.spatial import cKDTree
 
 from navtopo import grid_search
 from navtopo.geometry import compose, inverse, transform_points
@@ -281,9 +280,7 @@ class LocalPlanner:
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
         samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
         reach = self.wide + self.config.target_clearance
-        free = union.values_at(samples, union.mask("known", reach), False)
-        if blocked_xy is not None and len(blocked_xy):
-            free &= distance_to_points(samples, np.asarray(blocked_xy, dtype=np.float64)[:, :2]) > reach
+        free = union.values_at(samples, _passable(union, "known", reach, blocked_xy), False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
         leaves = np.flatnonzero(~free[first:])
@@ -295,15 +292,7 @@ class LocalPlanner:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
         if there is none, or only one through unknown cells far round (``unknown_detour``)."""
         snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
-        if blocked_xy is None or not len(blocked_xy):
-            masks = lambda level: union.mask(*self.levels[level])  # noqa: E731 - the cached masks
-        else:
-            stamp = _stamp(union, blocked_xy)
-
-            def masks(level: int) -> NDArray[np.bool_]:
-                kind, radius = self.levels[level]
-                kernel = _disk(radius, union.frame.resolution)
-                return union.mask(kind, radius) & ~(cv2.dilate(stamp, kernel) > 0)
+        masks = lambda level: _passable(union, *self.levels[level], blocked_xy)  # noqa: E731
 
         # a target the robot does not fit at even next to unknown space (a goal estimated into a
         # wall) is approached as near as the free space allows, never driven into
@@ -325,9 +314,12 @@ class LocalPlanner:
         return xy[far]
 
 
-def distance_to_points(xy: NDArray, points: NDArray) -> NDArray[np.float64]:
-    """(N,) distance from each of ``xy`` (N, 2) to the nearest of ``points`` (M, 2), M >= 1."""
-    return cKDTree(points).query(xy)[0].astype(np.float64)
+def _passable(union: UnionGrid, kind: str, radius: float, blocked_xy: NDArray | None) -> NDArray[np.bool_]:
+    """The union grid's cached ``mask(kind, radius)``, with new obstacles (N, 2+) blocked as far."""
+    if blocked_xy is None or not len(blocked_xy):
+        return union.mask(kind, radius)
+    blocked = cv2.dilate(_stamp(union, np.asarray(blocked_xy)[:, :2]), _disk(radius, union.frame.resolution)) > 0
+    return union.mask(kind, radius) & ~blocked
 
 
 def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
