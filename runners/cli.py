@@ -24,6 +24,20 @@ app = typer.Typer(
 )
 scenario_app = typer.Typer(help="List, inspect, validate and draw scenarios.", no_args_is_help=True)
 app.add_typer(scenario_app, name="scenario")
+
+
+def _flag_type_shown(display_type_rich):
+    """Typer's help panels give every option a type label, a flag too (`--help <bool>`, `--json
+    <bool>`): a flag takes no value, so it gets none, as in click's own help."""
+
+    def shown(self, ctx):
+        return None if getattr(self, "is_flag", False) else display_type_rich(self, ctx)
+
+    return shown
+
+
+if hasattr(typer.core.TyperOption, "display_type_rich"):
+    typer.core.TyperOption.display_type_rich = _flag_type_shown(typer.core.TyperOption.display_type_rich)
 console = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
 

@@ -198,6 +198,19 @@ def test_version_and_help_answer_without_the_heavy_modules():
     assert version.startswith("navtopo-bench ") and heavy == "[]"
 
 
+@pytest.mark.parametrize("args", [["--help"], ["scenario", "show", "--help"], ["scenario", "render", "--help"]])
+def test_help_gives_flags_no_value_placeholder(args):
+    """A flag takes no value: the help lists `--version`, `--json`, `--help` with no type label
+    (typer's panels would show `<bool>`), an option that takes one keeps its label."""
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rows = {cells[0]: cells[1:] for line in result.output.splitlines() if (cells := line.strip("│ *").split())}
+    flags = [flag for flag in ("--help", "--version", "--json", "--no-route") if flag in rows]
+    assert "--help" in flags and len(flags) >= 2, result.output
+    assert all(not rows[flag][0].startswith("<") for flag in flags) and "<bool>" not in result.output, result.output
+    assert "<path>" in rows.get("--output", ["<path>"])
+
+
 @pytest.mark.parametrize("target", ["blocker/out.png", "blocker", "folder", "out.txt"])
 def test_render_refuses_an_output_it_cannot_write_before_loading(tmp_path, target):
     (tmp_path / "blocker").write_text("a file where a folder would be")
