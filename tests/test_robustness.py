@@ -289,6 +289,14 @@ def test_run_with_a_config_that_is_a_folder_or_bad_yaml_is_one_line(tmp_path):
         (["--systems", ""], "at least one system"),
         (["--systems", " , "], "at least one system"),
         (["--systems", "oracle,oracle"], "named twice"),
+        (["--seeds", "1,2,1"], "--seeds '1,2,1': a seed is given twice"),
+        (["--setting", "noisy,precise,noisy"], "a setting is named twice"),
+        (["--stop-tolerance", "nan"], "--stop-tolerance nan: expected a finite number of metres, at least 0.01"),
+        (["--stop-tolerance", "inf"], "--stop-tolerance inf: expected a finite number"),
+        (["--stop-tolerance", "-0.5"], "--stop-tolerance -0.5: expected a finite number"),
+        (["--trial-timeout-s", "nan"], "--trial-timeout-s nan: expected a number of seconds, at least 1"),
+        (["--trial-memory-mb", "inf"], "--trial-memory-mb inf: expected a finite number of MB"),
+        (["--trial-memory-mb", "1e300"], "--trial-memory-mb 1e+300: expected a finite number of MB"),
     ],
 )
 def test_run_refuses_bad_flags_before_creating_anything(tmp_path, args, reason):
@@ -573,6 +581,7 @@ def test_scans_with_no_returns_are_mapped_without_error(name):
     ("args", "reason"),
     [
         (["run", "tiny", "--trials", "-1"], "Invalid value for '--trials'"),
+        (["run", "tiny", "--workers", "0"], "Invalid value for '--workers'"),
         (["run", "tiny", "--seed", "abc"], "Invalid value for '--seed'"),
         (["run", "tiny", "--bogus"], "No such option: --bogus"),
         (["nope"], "No such command 'nope'"),

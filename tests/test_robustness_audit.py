@@ -136,9 +136,12 @@ def test_report_and_plot_graph_into_a_read_only_folder_are_refused(tmp_path, rea
     assert not (run / "report").exists()
 
 
-def test_training_threads_below_one_are_refused_before_generating_scans(tmp_path, monkeypatch, capsys):
-    line = refused_by_main(monkeypatch, capsys, "train-descriptor", "--threads", "0", "--data-dir", str(tmp_path / "data"))
-    assert "--threads" in line and list(tmp_path.iterdir()) == []
+@pytest.mark.parametrize(
+    ("args", "reason"), [(["--threads", "0"], "--threads"), (["--minutes", "nan"], "--minutes nan: expected a")]
+)
+def test_training_flags_out_of_range_are_refused_before_generating_scans(tmp_path, monkeypatch, capsys, args, reason):
+    line = refused_by_main(monkeypatch, capsys, "train-descriptor", *args, "--data-dir", str(tmp_path / "data"))
+    assert reason in line and list(tmp_path.iterdir()) == []
 
 
 # ---------------------------------------------------------------------------------------------
@@ -240,6 +243,7 @@ def test_a_grid_no_machine_holds_is_refused_before_the_run_folder(tmp_path, conf
         (["scaling", "--lengths", "150,150.2"], "given twice"),
         (["scaling", "--building", "tree", "--lengths", "4000"], "--lengths 4000: a raster of"),
         (["scaling", "--route-factor", "inf"], "--route-factor inf"),
+        (["scaling", "--route-factor", "nan"], "--route-factor nan: expected a finite number"),
         (["scaling", "--systems", ""], "at least one system"),
         (["scaling", "--systems", "navtopo,navtopo"], "named twice"),
         (["scaling", "--seed", "-1"], "--seed"),
