@@ -24,7 +24,7 @@ from pathlib import Path, PurePath
 
 import yaml
 
-from reports.html import write_html
+from reports.html import UNDECODED, shown, write_html
 from reports.plots import PlotResult, groups_of, plot_efficiency, plot_planning, run_plots
 from reports.results import Run
 from reports.tables import write_tables
@@ -96,7 +96,13 @@ def reproduce_command(run: Run, config_file: str) -> str:
 
 
 def _quote(text: str) -> str:
-    return text if re.fullmatch(r"[A-Za-z0-9_./:=,+-]+", text) else "'" + text.replace("'", "'\\''") + "'"
+    """``text`` as one shell word; a file name that is not UTF-8 in bash's $'...', whose \\xNN
+    give back its very bytes."""
+    if re.fullmatch(r"[A-Za-z0-9_./:=,+-]+", text):
+        return text
+    if UNDECODED.search(text):
+        return "$'" + shown(text.replace("\\", "\\\\").replace("'", "\\'")) + "'"
+    return "'" + text.replace("'", "'\\''") + "'"
 
 
 Study = Callable[[list[Run], Path], list[PlotResult]]
@@ -120,7 +126,7 @@ def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | No
         if keys[key] > 1:
             key = f"{key}-{keys[key]}"
         config_file = f"config-{key}.yaml" if several else "config.yaml"
-        (out / config_file).write_text(yaml.safe_dump(run.manifest.config, sort_keys=False))
+        (out / config_file).write_text(yaml.safe_dump(run.manifest.config, sort_keys=False), encoding="utf-8")
         files.append(out / config_file)
         section = RunSection(run, key, config_file=config_file, command=reproduce_command(run, config_file))
         section.plots = run_plots(run, plots_dir / key if several else plots_dir, combined=not several)

@@ -88,6 +88,11 @@ def _main(
     ] = False,
 ) -> None:
     """navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner."""
+    # a file name that is not UTF-8 (a folder named in Latin-1) is printed as its own bytes, as ls
+    # and Python in the C locale print it, instead of failing every line that names it
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="surrogateescape")
 
 
 def _load(name: str, with_trials: bool = True, quiet: bool = False):
@@ -989,7 +994,7 @@ def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> Non
         fail(str(exc))
     for note in made.notes:
         console.print(f"note: {note}", highlight=False)
-    sys.stdout.write((out / f"{study}.md").read_text())
+    sys.stdout.write((out / f"{study}.md").read_text(encoding="utf-8"))
     console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
 

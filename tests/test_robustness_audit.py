@@ -190,6 +190,39 @@ def test_a_run_folder_named_twice_is_counted_once(tmp_path):
     assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text()  # navtopo's six trials, not twelve
 
 
+LATIN1 = os.fsdecode(b"caf\xe9")  # a folder named in Latin-1: not UTF-8 (Python keeps the byte as a surrogate)
+
+
+def test_a_report_of_a_run_in_a_folder_whose_name_is_not_utf8_is_written(tmp_path):
+    import json
+    import subprocess
+
+    from crafted_run import write_crafted_run
+
+    run = write_crafted_run(tmp_path / "run").rename(tmp_path / LATIN1)  # OpenCV cannot write there: copy it in
+    manifest = json.loads((run / "manifest.json").read_text())
+    manifest["scenario"]["file"] = str(tmp_path / LATIN1 / "my scene.yaml")  # run from a scenario file beside it
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    result = CliRunner().invoke(app, ["report", str(run)])
+    assert result.exit_code == 0, result.output
+    page = (run / "report" / "report.html").read_bytes().decode("utf-8")  # strict: the page is UTF-8
+    assert f"{tmp_path}/caf\\xe9/my scene.yaml" in page  # the byte shown, not dropped
+    command = next(line for line in page.splitlines() if "navtopo-bench run " in line)
+    quoted = command.split("navtopo-bench run ")[1].split(" --systems")[0].replace("&#x27;", "'")
+    assert quoted.startswith("$'")  # bash gives back the very bytes of the file name
+    echoed = subprocess.run(["bash", "-c", f"printf %s {quoted}"], capture_output=True, check=True).stdout
+    assert echoed == os.fsencode(tmp_path / LATIN1 / "my scene.yaml")
+    assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text(encoding="utf-8")
+
+
+def test_a_scenario_whose_map_is_in_a_folder_not_named_in_utf8_loads(tmp_path):
+    from scenarios import load_scenario
+
+    folder = tmp_path / LATIN1
+    folder.mkdir()
+    assert load_scenario(map_scenario(folder)).route_length_m > 0  # OpenCV, given the path, crashed the process
+
+
 def test_a_report_of_an_interrupted_run_says_how_to_finish_it(tmp_path):
     from crafted_run import write_crafted_run
 
