@@ -786,14 +786,6 @@ def report(
     from reports.report import make_report
     from reports.results import RunFormatError
 
-    # a folder named twice (`results/tiny/*` takes `latest` beside the run it names) would count
-    # its trials twice: once each
-    distinct: dict[Path, Path] = {}
-    for run_dir in run_dirs:
-        first = distinct.setdefault(run_dir.resolve(), run_dir)
-        if first is not run_dir:
-            note(f"{run_dir} is the run folder {first}: counted once")
-    run_dirs = list(distinct.values())
     writable_dir(out if out is not None else run_dirs[0] / "report", "--out" if out is not None else "report")
     try:
         made = make_report(run_dirs, out)
@@ -801,10 +793,10 @@ def report(
         fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the runs
         fail(f"report of {', '.join(map(str, run_dirs))} failed: {type(exc).__name__}: {exc}".replace("\n", " "), code=1)
-    for run_dir in run_dirs:
-        print_summary(run_dir)
+    for section in made.sections:  # each run once: a folder named twice or a copied run is left out
+        print_summary(section.run.root)
     for line in made.notes:
-        console.print(f"note: {line}", highlight=False)
+        console.print(f"note: {escape(line)}", highlight=False, soft_wrap=True)
     console.print(f"tables: {made.out / 'table.md'}, table.csv, table.tex", highlight=False)
     console.print(f"report: [bold]{made.html}[/]", highlight=False)
 

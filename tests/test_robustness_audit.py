@@ -190,6 +190,34 @@ def test_a_run_folder_named_twice_is_counted_once(tmp_path):
     assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text()  # navtopo's six trials, not twelve
 
 
+def test_a_copy_of_a_run_beside_it_is_counted_once_and_a_diverged_copy_refused(tmp_path):
+    import json
+    import shutil
+
+    from crafted_run import write_crafted_run
+
+    run = write_crafted_run(tmp_path / "run")
+    shutil.copytree(run, tmp_path / "backup")  # the same run twice: `report results/x/* backup/x/*`
+    result = CliRunner().invoke(app, ["report", str(run), str(tmp_path / "backup"), "--out", str(tmp_path / "both")])
+    assert result.exit_code == 0, result.output
+    assert f"note: {tmp_path / 'backup'} is a copy of the run in {run} (the same manifest as {run}, created " in result.output
+    assert "| 5/6 (83 %)" in (tmp_path / "both" / "table.md").read_text()  # navtopo's six trials, not twelve
+    assert result.output.count("summary of") == 1
+
+    trials = tmp_path / "backup" / "trials.jsonl"
+    trials.write_text(trials.read_text().replace('"success": true', '"success": false', 1))  # the copy went on apart
+    line = one_line_error(CliRunner().invoke(app, ["report", str(run), str(tmp_path / "backup"), "--out", str(tmp_path / "no")]))
+    assert f"{tmp_path / 'backup'}: a copy of the run in {run}" in line and "with other trials: report one of them" in line
+    assert not (tmp_path / "no").exists()
+
+    manifest = json.loads((tmp_path / "backup" / "manifest.json").read_text())
+    manifest["created"] = "2026-01-01T00:00:01+00:00"  # another run of the same command: both count
+    (tmp_path / "backup" / "manifest.json").write_text(json.dumps(manifest))
+    result = CliRunner().invoke(app, ["report", str(run), str(tmp_path / "backup"), "--out", str(tmp_path / "two")])
+    assert result.exit_code == 0 and "is a copy" not in result.output, result.output
+    assert "| 9/12 (75 %)" in (tmp_path / "two" / "table.md").read_text()  # the edited copy counted too
+
+
 LATIN1 = os.fsdecode(b"caf\xe9")  # a folder named in Latin-1: not UTF-8 (Python keeps the byte as a surrogate)
 
 
