@@ -655,8 +655,9 @@ def _report_outcomes(shown: list[_RunProgress], outcomes: list) -> None:
             continue
         run_dir = outcome.value
         if run_dir.failed_stages:
-            why = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
-            failures.append(f"navigation stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
+            stages = " and ".join(dict.fromkeys(stage for stage, _ in run_dir.failed_stages.values()))
+            why = "; ".join(f"{name}: {why}" for name, (_, why) in run_dir.failed_stages.items())
+            failures.append(f"{stages} stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
             continue
         if read_json(run_dir.manifest_path).get("trial_count") == 0:
             if run.scenario.trials:
