@@ -40,8 +40,18 @@ figcaption { font-size: 0.85rem; color: #444; } .note { color: #8a4b00; font-siz
 """
 
 
+# the bytes of a file name that are not UTF-8, as Python holds them in a str (PEP 383: U+DC80-U+DCFF)
+UNDECODED = re.compile("[\udc80-\udcff]")
+
+
+def shown(text: str) -> str:
+    """``text`` with each byte of a file name that is not UTF-8 written ``\\xNN``: a page or a
+    table is UTF-8, which cannot hold the byte itself (a folder named in Latin-1, say)."""
+    return UNDECODED.sub(lambda m: f"\\x{ord(m[0]) - 0xDC00:02x}", text)
+
+
 def _e(value: Any) -> str:
-    return html.escape(str(value), quote=True)
+    return html.escape(shown(str(value)), quote=True)
 
 
 def _inline(text: str) -> str:

@@ -12,7 +12,8 @@ Writes, under ``out`` (default: the first run's ``report/``)::
 With several runs, each run's own plots and its config go under a key naming it
 (``<scenario>-<setting>-s<seed>``, with ``-2``, ``-3`` where two runs share it): ``plots/<key>/``
 and ``config-<key>.yaml``. Everything is made from the results folders alone, so a report made
-from a copied folder is byte for byte the one made from the original.
+from a copied folder is byte for byte the one made from the original. Each run counts once: a
+folder named twice, or a copy of a run named beside it, is left out with a note (``distinct_runs``).
 """
 
 from __future__ import annotations
@@ -24,9 +25,9 @@ from pathlib import Path, PurePath
 
 import yaml
 
-from reports.html import write_html
+from reports.html import UNDECODED, shown, write_html
 from reports.plots import PlotResult, groups_of, plot_efficiency, plot_planning, run_plots
-from reports.results import Run
+from reports.results import Run, RunFormatError
 from reports.tables import write_tables
 
 
@@ -49,6 +50,7 @@ class Report:
     files: list[Path]
     study: list[PlotResult] = field(default_factory=list)
     study_title: str = ""
+    left_out: list[str] = field(default_factory=list)  # runs named twice or copied, one line each
 
     @property
     def html(self) -> Path:
@@ -58,7 +60,7 @@ class Report:
     def notes(self) -> list[str]:
         """Why any plot was skipped or drawn without the GT map, one line each."""
         lines = [f"{s.key}: {p.name}: {p.note}" for s in self.sections for p in s.plots if p.note]
-        return lines + [f"{p.name}: {p.note}" for p in self.combined + self.study if p.note]
+        return self.left_out + lines + [f"{p.name}: {p.note}" for p in self.combined + self.study if p.note]
 
 
 def run_key(run: Run) -> str:
@@ -96,17 +98,49 @@ def reproduce_command(run: Run, config_file: str) -> str:
 
 
 def _quote(text: str) -> str:
-    return text if re.fullmatch(r"[A-Za-z0-9_./:=,+-]+", text) else "'" + text.replace("'", "'\\''") + "'"
+    """``text`` as one shell word; a file name that is not UTF-8 in bash's $'...', whose \\xNN
+    give back its very bytes."""
+    if re.fullmatch(r"[A-Za-z0-9_./:=,+-]+", text):
+        return text
+    if UNDECODED.search(text):
+        return "$'" + shown(text.replace("\\", "\\\\").replace("'", "\\'")) + "'"
+    return "'" + text.replace("'", "'\\''") + "'"
 
 
 Study = Callable[[list[Run], Path], list[PlotResult]]
 
 
+def distinct_runs(run_dirs: list[Path]) -> tuple[list[Run], list[str]]:
+    """Every run once, loaded (``RunFormatError`` on a damaged folder), and a note for each left
+    out: a folder named twice (``results/tiny/*`` names ``latest`` beside the run it points to) or a
+    copy of a run named before it. A copy is the same run: the same manifest, down to the second it
+    was created, the revision and the machine; pooling it would count its trials twice. A copy
+    whose trials differ from the original's (it went on apart) is refused: which one counts is
+    the user's choice."""
+    runs: list[Run] = []
+    notes: list[str] = []
+    for run_dir in run_dirs:
+        named = next((r for r in runs if r.root.resolve() == Path(run_dir).resolve()), None)
+        if named is not None:
+            notes.append(f"{run_dir} is the run folder {named.root}: counted once")
+            continue
+        run = Run.load(run_dir)
+        copied = next((r for r in runs if r.manifest.created is not None and r.manifest == run.manifest), None)
+        if copied is None:
+            runs.append(run)
+            continue
+        same = f"the same manifest as {copied.root}, created {copied.manifest.created}"
+        if copied.trials != run.trials:
+            raise RunFormatError(f"{run_dir}: a copy of the run in {copied.root} ({same}) with other trials: report one of them")
+        notes.append(f"{run_dir} is a copy of the run in {copied.root} ({same}): counted once")
+    return runs, notes
+
+
 def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | None = None, study_title: str = "") -> Report:
-    """Load every run (``RunFormatError`` on a damaged folder, before anything is written) and
-    write the report under ``out`` (default ``run_dirs[0]/report``). ``study(runs, out)`` (e.g.
+    """Load every run once (``distinct_runs``; ``RunFormatError`` on a damaged folder, before
+    anything is written) and write the report under ``out`` (default ``run_dirs[0]/report``). ``study(runs, out)`` (e.g.
     ``reports.sweep.write_scaling``) adds its files and plots, shown first on the page."""
-    runs = [Run.load(d) for d in run_dirs]
+    runs, left_out = distinct_runs(run_dirs)
     out = Path(out) if out is not None else Path(run_dirs[0]) / "report"
     out.mkdir(parents=True, exist_ok=True)
     files = write_tables(runs, out)
@@ -120,7 +154,7 @@ def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | No
         if keys[key] > 1:
             key = f"{key}-{keys[key]}"
         config_file = f"config-{key}.yaml" if several else "config.yaml"
-        (out / config_file).write_text(yaml.safe_dump(run.manifest.config, sort_keys=False))
+        (out / config_file).write_text(yaml.safe_dump(run.manifest.config, sort_keys=False), encoding="utf-8")
         files.append(out / config_file)
         section = RunSection(run, key, config_file=config_file, command=reproduce_command(run, config_file))
         section.plots = run_plots(run, plots_dir / key if several else plots_dir, combined=not several)
@@ -134,7 +168,7 @@ def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | No
     study_plots = study(runs, out) if study is not None else []
     for plot in study_plots:
         files += plot.files
-    report = Report(out, sections, combined, files, study_plots, study_title)
+    report = Report(out, sections, combined, files, study_plots, study_title, left_out)
     write_html(report)
     report.files.append(report.html)
     return report

@@ -195,8 +195,8 @@ def scaling_markdown(runs: list[Run]) -> str:
 def write_scaling(runs: list[Run], out: Path) -> list[PlotResult]:
     """scaling.md, scaling.csv and the plot (PNG, SVG) under ``out``; returns the plot for the page."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "scaling.md").write_text(scaling_markdown(runs))
-    (out / "scaling.csv").write_text(scaling_csv(runs))
+    (out / "scaling.md").write_text(scaling_markdown(runs), encoding="utf-8")
+    (out / "scaling.csv").write_text(scaling_csv(runs), encoding="utf-8")
     return [plot_scaling(runs, out / "plots")]
 
 
@@ -372,6 +372,6 @@ def plot_figure1(runs: list[Run], folder: Path, name: str = "figure1") -> PlotRe
 def write_drift(runs: list[Run], out: Path) -> list[PlotResult]:
     """drift.md, drift.csv and the plots (PNG, SVG) under ``out``; returns the plots for the page."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "drift.md").write_text(drift_markdown(runs))
-    (out / "drift.csv").write_text(drift_csv(runs))
+    (out / "drift.md").write_text(drift_markdown(runs), encoding="utf-8")
+    (out / "drift.csv").write_text(drift_csv(runs), encoding="utf-8")
     return [plot_drift(runs, out / "plots"), plot_figure1(runs, out / "plots")]

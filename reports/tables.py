@@ -542,7 +542,7 @@ def write_tables(runs: list[Run], out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     table = table_rows(runs)
     files = [out / "table.md", out / "table.csv", out / "table.tex"]
-    files[0].write_text(markdown_document(table, paper_comparison(table)))
-    files[1].write_text(to_csv(table))
-    files[2].write_text(latex(table))
+    files[0].write_text(markdown_document(table, paper_comparison(table)), encoding="utf-8")
+    files[1].write_text(to_csv(table), encoding="utf-8")
+    files[2].write_text(latex(table), encoding="utf-8")
     return files

@@ -24,6 +24,20 @@ app = typer.Typer(
 )
 scenario_app = typer.Typer(help="List, inspect, validate and draw scenarios.", no_args_is_help=True)
 app.add_typer(scenario_app, name="scenario")
+
+
+def _flag_type_shown(display_type_rich):
+    """Typer's help panels give every option a type label, a flag too (`--help <bool>`, `--json
+    <bool>`): a flag takes no value, so it gets none, as in click's own help."""
+
+    def shown(self, ctx):
+        return None if getattr(self, "is_flag", False) else display_type_rich(self, ctx)
+
+    return shown
+
+
+if hasattr(typer.core.TyperOption, "display_type_rich"):
+    typer.core.TyperOption.display_type_rich = _flag_type_shown(typer.core.TyperOption.display_type_rich)
 console = Console(width=None if sys.stdout.isatty() else 160)
 err = Console(stderr=True, width=None if sys.stderr.isatty() else 200)
 
@@ -74,6 +88,11 @@ def _main(
     ] = False,
 ) -> None:
     """navtopo-bench: topological (NavTopo) vs metric-SLAM navigation, one PyBullet scenario runner."""
+    # a file name that is not UTF-8 (a folder named in Latin-1) is printed as its own bytes, as ls
+    # and Python in the C locale print it, instead of failing every line that names it
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="surrogateescape")
 
 
 def _load(name: str, with_trials: bool = True, quiet: bool = False):
@@ -148,10 +167,14 @@ def run(
     executor: ExecutorOption = "local",
     ray_address: RayAddressOption = None,
     trial_timeout: Annotated[
-        float, typer.Option("--trial-timeout-s", help="wall-clock limit of one trial: its worker is killed past it", min=1.0)
+        float,
+        typer.Option(
+            "--trial-timeout-s", help="wall-clock limit of one trial (at least 1; inf: none): its worker is killed past it"
+        ),
     ] = 3600.0,
     trial_memory_mb: Annotated[
-        float | None, typer.Option(help="address space a trial may add (RLIMIT_AS): past it the trial is out_of_memory", min=1.0)
+        float | None,
+        typer.Option(help="address space a trial may add (RLIMIT_AS; at least 1): past it the trial is out_of_memory"),
     ] = None,
     results: Annotated[Path, typer.Option(help="root of the results folders")] = Path("results"),
     config_file: Annotated[
@@ -169,7 +192,7 @@ def run(
         typer.Option(help="XY_M,YAW_DEG: uniform error of the initial pose given to systems that take one (0,0: exact)"),
     ] = "0.5,10",
     stop_tolerance: Annotated[
-        float, typer.Option(help="m: every system that stops by its own estimate stops this close to the goal", min=0.01)
+        float, typer.Option(help="m (at least 0.01): every system that stops by its own estimate stops this close to the goal")
     ] = 0.35,
     goals: Annotated[
         str,
@@ -215,14 +238,17 @@ def run(
         bad = [x for x in setting_list if x not in SETTINGS]
         if bad or not setting_list:
             fail(f"--setting: unknown setting {', '.join(bad) or repr(setting)} (choose from {', '.join(SETTINGS)})")
+        if len(set(setting_list)) < len(setting_list):
+            fail(f"--setting {setting!r}: a setting is named twice (the same run twice)")
     try:
         error_xy, error_yaw = (float(v) for v in initial_pose_error.split(","))
         if not (0 <= error_xy < math.inf and 0 <= error_yaw < math.inf):
             raise ValueError
     except ValueError:
         fail(f"--initial-pose-error: expected two non-negative numbers XY_M,YAW_DEG, got {initial_pose_error!r}")
-    if not math.isfinite(stop_tolerance):
-        fail(f"--stop-tolerance {stop_tolerance}: not a finite number of metres")
+    check_number("--stop-tolerance", stop_tolerance, "metres", low=0.01)
+    check_number("--trial-timeout-s", trial_timeout, "seconds", low=1.0, finite=False)
+    check_number("--trial-memory-mb", trial_memory_mb, "MB", low=1.0, high=MAX_TRIAL_MEMORY_MB)
     if goals not in ("map", "native"):
         fail(f"--goals: {goals!r} is not map or native")
     protocol = TrialProtocol(
@@ -236,6 +262,8 @@ def run(
             fail(f"--seeds: not a list of integers: {seeds!r}")
         if not seed_list:
             fail(f"--seeds {seeds!r}: give at least one seed")
+        if len(set(seed_list)) < len(seed_list):
+            fail(f"--seeds {seeds!r}: a seed is given twice (the same run twice)")
     for flag, value in [("--seed", seed)] + [("--seeds", s) for s in seed_list]:
         if value is not None and value < 0:
             fail(f"{flag} {value}: a seed is a non-negative integer")
@@ -352,6 +380,19 @@ def run(
     ]
     with _executor(todo[0][1]) as pool:
         _run_all(todo, pool)
+
+
+MAX_TRIAL_MEMORY_MB = 1e9  # 1 PB: RLIMIT_AS counts bytes in 63 bits, and no machine has more
+
+
+def check_number(flag: str, value: float | None, unit: str, low: float, high: float = math.inf, finite: bool = True) -> None:
+    """Refuse (one line, exit 2) a number flag that is nan, infinite (unless ``finite`` is False)
+    or outside [low, high]: typer's own range check would call nan "not greater than" its bound."""
+    if value is None:
+        return
+    if math.isnan(value) or (finite and math.isinf(value)) or not low <= value <= high:
+        bound = f"at least {low:,.12g}" if high == math.inf else f"{low:,.12g} to {high:,.12g}"
+        fail(f"{flag} {value:g}: expected {'a finite' if finite else 'a'} number of {unit}, {bound}")
 
 
 def _systems_option(systems: str) -> list[str]:
@@ -614,8 +655,9 @@ def _report_outcomes(shown: list[_RunProgress], outcomes: list) -> None:
             continue
         run_dir = outcome.value
         if run_dir.failed_stages:
-            why = "; ".join(f"{name}: {why}" for name, why in run_dir.failed_stages.items())
-            failures.append(f"navigation stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
+            stages = " and ".join(dict.fromkeys(stage for stage, _ in run_dir.failed_stages.values()))
+            why = "; ".join(f"{name}: {why}" for name, (_, why) in run_dir.failed_stages.items())
+            failures.append(f"{stages} stage failed, no trial counted ({why}); after fixing it: --resume {run_dir.root}")
             continue
         if read_json(run_dir.manifest_path).get("trial_count") == 0:
             if run.scenario.trials:
@@ -745,14 +787,6 @@ def report(
     from reports.report import make_report
     from reports.results import RunFormatError
 
-    # a folder named twice (`results/tiny/*` takes `latest` beside the run it names) would count
-    # its trials twice: once each
-    distinct: dict[Path, Path] = {}
-    for run_dir in run_dirs:
-        first = distinct.setdefault(run_dir.resolve(), run_dir)
-        if first is not run_dir:
-            note(f"{run_dir} is the run folder {first}: counted once")
-    run_dirs = list(distinct.values())
     writable_dir(out if out is not None else run_dirs[0] / "report", "--out" if out is not None else "report")
     try:
         made = make_report(run_dirs, out)
@@ -760,10 +794,10 @@ def report(
         fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - a bug or an odd file: still one line, naming the runs
         fail(f"report of {', '.join(map(str, run_dirs))} failed: {type(exc).__name__}: {exc}".replace("\n", " "), code=1)
-    for run_dir in run_dirs:
-        print_summary(run_dir)
+    for section in made.sections:  # each run once: a folder named twice or a copied run is left out
+        print_summary(section.run.root)
     for line in made.notes:
-        console.print(f"note: {line}", highlight=False)
+        console.print(f"note: {escape(line)}", highlight=False, soft_wrap=True)
     console.print(f"tables: {made.out / 'table.md'}, table.csv, table.tex", highlight=False)
     console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
@@ -827,7 +861,7 @@ def sweep_scaling(
     seed: Annotated[int, typer.Option(help="seed of the generated buildings", min=0)] = 31,
     building: Annotated[str, typer.Option(help="lattice (corridors round blocks: loops) or tree")] = "lattice",
     route_factor: Annotated[
-        float, typer.Option(help="the mapping route drives at least this x the corridor length", min=0.5)
+        float, typer.Option(help="the mapping route drives at least this x the corridor length (at least 0.5)")
     ] = 1.0,
     setting: Annotated[str, typer.Option(help="precise or noisy")] = "precise",
     workers: WorkersOption = None,
@@ -856,7 +890,8 @@ def sweep_scaling(
         )
     if len({round(v) for v in length_list}) < len(length_list):
         fail(f"--lengths {lengths!r}: a length is given twice (to the metre: each has its folder <length>m)")
-    if not (math.isfinite(route_factor) and route_factor * max(length_list) <= MAX_ROUTE_M):
+    check_number("--route-factor", route_factor, "times the corridor length", low=0.5)
+    if route_factor * max(length_list) > MAX_ROUTE_M:
         fail(f"--route-factor {route_factor}: the route of the {max(length_list):g} m building would pass {MAX_ROUTE_M:g} m")
     names = _systems_option(systems)
     if setting not in SETTINGS:
@@ -952,7 +987,7 @@ def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> Non
         fail(str(exc))
     for note in made.notes:
         console.print(f"note: {note}", highlight=False)
-    sys.stdout.write((out / f"{study}.md").read_text())
+    sys.stdout.write((out / f"{study}.md").read_text(encoding="utf-8"))
     console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
 
@@ -963,7 +998,7 @@ def _sweep_report(folders: list[Path], out: Path, study: str, title: str) -> Non
 @app.command("train-descriptor")
 def train_descriptor(
     descriptor: Annotated[str, typer.Option(help="minkloc3d or polar_bev")] = "minkloc3d",
-    minutes: Annotated[float, typer.Option(help="training time budget", min=0.1)] = 15.0,
+    minutes: Annotated[float, typer.Option(help="training time budget (at least 0.1)")] = 15.0,
     worlds: Annotated[int, typer.Option(help="generated training worlds (never the bundled scenarios)", min=1)] = 9,
     threads: Annotated[int | None, typer.Option(help="torch threads (1 is fastest on a shared 2-core machine)", min=1)] = 1,
     data_dir: Annotated[Path, typer.Option(help="cache of generated scans")] = Path("data/place_recognition"),
@@ -976,6 +1011,7 @@ def train_descriptor(
     ] = None,
 ) -> None:
     """Train a place-recognition descriptor on scans of generated corridor worlds."""
+    check_number("--minutes", minutes, "minutes", low=0.1)
     from navtopo.place_recognition import available_descriptors
     from runners.place_recognition_data import default_training_out, existing_weights
     from runners.place_recognition_data import train_descriptor as train

@@ -85,7 +85,9 @@ class RunDir:
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
         self.warnings = 0  # trials of this execution that failed in their worker (their record has a detail)
-        self.failed_stages: dict[str, str] = {}  # system -> why its navigation stage could not start
+        # system -> (stage, why): its mapping failed, or its navigation could not start (its map
+        # cannot be loaded); its trials are not run, and the run stays unfinished for --resume
+        self.failed_stages: dict[str, tuple[str, str]] = {}
 
     @property
     def manifest_path(self) -> Path:

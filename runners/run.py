@@ -336,8 +336,9 @@ def navigate(
     on_trial: Callable[[dict[str, Any]], None] | None,
     say: Callable[[str, Any], None],
 ) -> Steps:
-    """Stage 2 as steps: a system whose mapping failed fails its trials with that reason; the others'
-    trials run in chunks (``slots`` a system), one job per chunk. A trial whose worker crashed or
+    """Stage 2 as steps: a system whose mapping failed is a failed stage (no trial of it runs or is
+    recorded: a broken map is no navigation result); the others' trials run in chunks (``slots``
+    a system), one job per chunk. A trial whose worker crashed or
     passed its wall-clock limit is recorded so (``crashed`` / ``timeout``) and the rest of its chunk
     runs in a new job. Each record names the worker that ran it (``worker``; None if none did)."""
     scenario, trial_count = plan.scenario, plan.trial_count
@@ -364,13 +365,11 @@ def navigate(
 
     for name in plan.systems:
         if "error" in plan.mapping[name]:
-            for i in range(trial_count or 0):
-                if (name, i) not in done:
-                    record(failed(name, i, "error", f"mapping failed: {plan.mapping[name]['error']}"), None)
+            run.failed_stages[name] = ("mapping", plan.mapping[name]["error"])
     jobs = []
     for name in plan.systems:
         pending = [i for i in range(trial_count or 0) if (name, i) not in done]
-        if not pending:
+        if not pending or name in run.failed_stages:
             continue
         chunks = [pending[k::slots] for k in range(slots)]
         archive = pack_dir(run.map_dir(name))
@@ -413,7 +412,7 @@ def navigate(
                 write_json(run.root / "navigation" / f"{job.system}.json", message["report"])
             elif message["kind"] == "map_load_error":  # no trial ran: a failed stage, not failed trials
                 run.failed_stages.setdefault(
-                    job.system, f"the map in {run.map_dir(job.system)} cannot be loaded: {message['detail']}"
+                    job.system, ("navigation", f"the map in {run.map_dir(job.system)} cannot be loaded: {message['detail']}")
                 )
             continue
         running -= 1

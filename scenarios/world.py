@@ -301,13 +301,15 @@ def read_ros_map(
 
 
 def read_image_quietly(path: Path) -> NDArray | None:
-    """``cv2.imread`` (unchanged: depth and channels as stored), None for a file it cannot decode,
-    without OpenCV's own lines on stderr (a truncated PGM prints three): the caller says why."""
+    """The image (unchanged: depth and channels as stored), None for a file OpenCV cannot decode,
+    without OpenCV's own lines on stderr (a truncated PGM prints three): the caller says why.
+    Decoded from its bytes: ``cv2.imread`` of a path that is not UTF-8 crashes the process."""
     logging = cv2.utils.logging
     level = logging.getLogLevel()
     logging.setLogLevel(logging.LOG_LEVEL_SILENT)
     try:
-        return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        data = np.fromfile(path, np.uint8)
+        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     finally:
         logging.setLogLevel(level)
 

@@ -20,6 +20,7 @@ class FaultyConfig(OracleConfig):
     hang_at: list[list[float]] = []  # never return (the wall-clock limit ends it)
     hog_at: list[list[float]] = []  # allocate until the address-space limit refuses
     abort_while_mapping: bool = False  # kill the mapping worker at the first scan
+    raise_while_mapping: bool = False  # raise at the first scan
 
 
 def _near(goal: np.ndarray, points: list[list[float]]) -> bool:
@@ -31,6 +32,8 @@ class Faulty(Oracle):
     def observe(self, obs) -> None:
         if self.config.abort_while_mapping:
             os.abort()
+        if self.config.raise_while_mapping:
+            raise RuntimeError("faulty: raised while mapping")
         super().observe(obs)
 
     def set_goal(self, goal: np.ndarray) -> None:

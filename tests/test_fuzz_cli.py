@@ -139,12 +139,14 @@ CONFIGS = {
 FLAGS = {
     "--systems": ["oracle", "", " , ", "nope", "oracle,oracle", "oracle,navtopo"],
     "--seed": ["-1", "0", "7", "abc", str(2**70)],
-    "--seeds": ["", ",", "1,2", "x", "3,-3"],
+    "--seeds": ["", ",", "1,2", "x", "3,-3", "1,1"],
     "--trials": ["0", "1", "-1", "abc"],
     "--workers": ["0", "1", "2"],
-    "--setting": ["precise", "nope", ",", "precise,noisy"],
+    "--setting": ["precise", "nope", ",", "precise,noisy", "noisy,noisy"],
     "--initial-pose-error": ["0,0", "-1,2", "a", "1,2,3", "inf,1", "nan,0"],
     "--stop-tolerance": ["0", "0.35", "-1", "nan", "inf"],
+    "--trial-timeout-s": ["60", "0", "nan", "inf"],
+    "--trial-memory-mb": ["512", "0", "nan", "inf", "1e300"],
     "--goals": ["map", "x"],
     "--executor": ["local", "ray", "x"],
 }

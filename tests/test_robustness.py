@@ -198,6 +198,19 @@ def test_version_and_help_answer_without_the_heavy_modules():
     assert version.startswith("navtopo-bench ") and heavy == "[]"
 
 
+@pytest.mark.parametrize("args", [["--help"], ["scenario", "show", "--help"], ["scenario", "render", "--help"]])
+def test_help_gives_flags_no_value_placeholder(args):
+    """A flag takes no value: the help lists `--version`, `--json`, `--help` with no type label
+    (typer's panels would show `<bool>`), an option that takes one keeps its label."""
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    rows = {cells[0]: cells[1:] for line in result.output.splitlines() if (cells := line.strip("│ *").split())}
+    flags = [flag for flag in ("--help", "--version", "--json", "--no-route") if flag in rows]
+    assert "--help" in flags and len(flags) >= 2, result.output
+    assert all(not rows[flag][0].startswith("<") for flag in flags) and "<bool>" not in result.output, result.output
+    assert "<path>" in rows.get("--output", ["<path>"])
+
+
 @pytest.mark.parametrize("target", ["blocker/out.png", "blocker", "folder", "out.txt"])
 def test_render_refuses_an_output_it_cannot_write_before_loading(tmp_path, target):
     (tmp_path / "blocker").write_text("a file where a folder would be")
@@ -276,6 +289,14 @@ def test_run_with_a_config_that_is_a_folder_or_bad_yaml_is_one_line(tmp_path):
         (["--systems", ""], "at least one system"),
         (["--systems", " , "], "at least one system"),
         (["--systems", "oracle,oracle"], "named twice"),
+        (["--seeds", "1,2,1"], "--seeds '1,2,1': a seed is given twice"),
+        (["--setting", "noisy,precise,noisy"], "a setting is named twice"),
+        (["--stop-tolerance", "nan"], "--stop-tolerance nan: expected a finite number of metres, at least 0.01"),
+        (["--stop-tolerance", "inf"], "--stop-tolerance inf: expected a finite number"),
+        (["--stop-tolerance", "-0.5"], "--stop-tolerance -0.5: expected a finite number"),
+        (["--trial-timeout-s", "nan"], "--trial-timeout-s nan: expected a number of seconds, at least 1"),
+        (["--trial-memory-mb", "inf"], "--trial-memory-mb inf: expected a finite number of MB"),
+        (["--trial-memory-mb", "1e300"], "--trial-memory-mb 1e+300: expected a finite number of MB"),
     ],
 )
 def test_run_refuses_bad_flags_before_creating_anything(tmp_path, args, reason):
@@ -560,6 +581,7 @@ def test_scans_with_no_returns_are_mapped_without_error(name):
     ("args", "reason"),
     [
         (["run", "tiny", "--trials", "-1"], "Invalid value for '--trials'"),
+        (["run", "tiny", "--workers", "0"], "Invalid value for '--workers'"),
         (["run", "tiny", "--seed", "abc"], "Invalid value for '--seed'"),
         (["run", "tiny", "--bogus"], "No such option: --bogus"),
         (["nope"], "No such command 'nope'"),

@@ -136,9 +136,12 @@ def test_report_and_plot_graph_into_a_read_only_folder_are_refused(tmp_path, rea
     assert not (run / "report").exists()
 
 
-def test_training_threads_below_one_are_refused_before_generating_scans(tmp_path, monkeypatch, capsys):
-    line = refused_by_main(monkeypatch, capsys, "train-descriptor", "--threads", "0", "--data-dir", str(tmp_path / "data"))
-    assert "--threads" in line and list(tmp_path.iterdir()) == []
+@pytest.mark.parametrize(
+    ("args", "reason"), [(["--threads", "0"], "--threads"), (["--minutes", "nan"], "--minutes nan: expected a")]
+)
+def test_training_flags_out_of_range_are_refused_before_generating_scans(tmp_path, monkeypatch, capsys, args, reason):
+    line = refused_by_main(monkeypatch, capsys, "train-descriptor", *args, "--data-dir", str(tmp_path / "data"))
+    assert reason in line and list(tmp_path.iterdir()) == []
 
 
 # ---------------------------------------------------------------------------------------------
@@ -185,6 +188,67 @@ def test_a_run_folder_named_twice_is_counted_once(tmp_path):
     assert result.exit_code == 0, result.output
     assert f"note: {tmp_path / 'latest'} is the run folder {run}: counted once" in result.output
     assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text()  # navtopo's six trials, not twelve
+
+
+def test_a_copy_of_a_run_beside_it_is_counted_once_and_a_diverged_copy_refused(tmp_path):
+    import json
+    import shutil
+
+    from crafted_run import write_crafted_run
+
+    run = write_crafted_run(tmp_path / "run")
+    shutil.copytree(run, tmp_path / "backup")  # the same run twice: `report results/x/* backup/x/*`
+    result = CliRunner().invoke(app, ["report", str(run), str(tmp_path / "backup"), "--out", str(tmp_path / "both")])
+    assert result.exit_code == 0, result.output
+    assert f"note: {tmp_path / 'backup'} is a copy of the run in {run} (the same manifest as {run}, created " in result.output
+    assert "| 5/6 (83 %)" in (tmp_path / "both" / "table.md").read_text()  # navtopo's six trials, not twelve
+    assert result.output.count("summary of") == 1
+
+    trials = tmp_path / "backup" / "trials.jsonl"
+    trials.write_text(trials.read_text().replace('"success": true', '"success": false', 1))  # the copy went on apart
+    line = one_line_error(CliRunner().invoke(app, ["report", str(run), str(tmp_path / "backup"), "--out", str(tmp_path / "no")]))
+    assert f"{tmp_path / 'backup'}: a copy of the run in {run}" in line and "with other trials: report one of them" in line
+    assert not (tmp_path / "no").exists()
+
+    manifest = json.loads((tmp_path / "backup" / "manifest.json").read_text())
+    manifest["created"] = "2026-01-01T00:00:01+00:00"  # another run of the same command: both count
+    (tmp_path / "backup" / "manifest.json").write_text(json.dumps(manifest))
+    result = CliRunner().invoke(app, ["report", str(run), str(tmp_path / "backup"), "--out", str(tmp_path / "two")])
+    assert result.exit_code == 0 and "is a copy" not in result.output, result.output
+    assert "| 9/12 (75 %)" in (tmp_path / "two" / "table.md").read_text()  # the edited copy counted too
+
+
+LATIN1 = os.fsdecode(b"caf\xe9")  # a folder named in Latin-1: not UTF-8 (Python keeps the byte as a surrogate)
+
+
+def test_a_report_of_a_run_in_a_folder_whose_name_is_not_utf8_is_written(tmp_path):
+    import json
+    import subprocess
+
+    from crafted_run import write_crafted_run
+
+    run = write_crafted_run(tmp_path / "run").rename(tmp_path / LATIN1)  # OpenCV cannot write there: copy it in
+    manifest = json.loads((run / "manifest.json").read_text())
+    manifest["scenario"]["file"] = str(tmp_path / LATIN1 / "my scene.yaml")  # run from a scenario file beside it
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    result = CliRunner().invoke(app, ["report", str(run)])
+    assert result.exit_code == 0, result.output
+    page = (run / "report" / "report.html").read_bytes().decode("utf-8")  # strict: the page is UTF-8
+    assert f"{tmp_path}/caf\\xe9/my scene.yaml" in page  # the byte shown, not dropped
+    command = next(line for line in page.splitlines() if "navtopo-bench run " in line)
+    quoted = command.split("navtopo-bench run ")[1].split(" --systems")[0].replace("&#x27;", "'")
+    assert quoted.startswith("$'")  # bash gives back the very bytes of the file name
+    echoed = subprocess.run(["bash", "-c", f"printf %s {quoted}"], capture_output=True, check=True).stdout
+    assert echoed == os.fsencode(tmp_path / LATIN1 / "my scene.yaml")
+    assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text(encoding="utf-8")
+
+
+def test_a_scenario_whose_map_is_in_a_folder_not_named_in_utf8_loads(tmp_path):
+    from scenarios import load_scenario
+
+    folder = tmp_path / LATIN1
+    folder.mkdir()
+    assert load_scenario(map_scenario(folder)).route_length_m > 0  # OpenCV, given the path, crashed the process
 
 
 def test_a_report_of_an_interrupted_run_says_how_to_finish_it(tmp_path):
@@ -240,6 +304,7 @@ def test_a_grid_no_machine_holds_is_refused_before_the_run_folder(tmp_path, conf
         (["scaling", "--lengths", "150,150.2"], "given twice"),
         (["scaling", "--building", "tree", "--lengths", "4000"], "--lengths 4000: a raster of"),
         (["scaling", "--route-factor", "inf"], "--route-factor inf"),
+        (["scaling", "--route-factor", "nan"], "--route-factor nan: expected a finite number"),
         (["scaling", "--systems", ""], "at least one system"),
         (["scaling", "--systems", "navtopo,navtopo"], "named twice"),
         (["scaling", "--seed", "-1"], "--seed"),

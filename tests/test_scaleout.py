@@ -118,14 +118,35 @@ def test_a_mapping_job_that_kills_its_worker_fails_that_system_only(tmp_path):
     report = json.loads((out / "mapping" / "faulty.json").read_text())
     assert report["error"].startswith("crashed: worker process killed by SIGABRT")
     assert not (out / "maps" / "faulty").exists() and (out / "maps" / "oracle" / "oracle.json").is_file()
-    records = records_of(out)
-    assert all(
-        r["reason"] == "error" and r["detail"].startswith("mapping failed: crashed")
-        for k, r in records.items()
-        if k[0] == "faulty"
+    stage, why = run.failed_stages["faulty"]
+    assert stage == "mapping" and why.startswith("crashed: worker process killed by SIGABRT")
+    records = records_of(out)  # a map never made is no navigation failure: no trial of it recorded
+    assert all(r["success"] for r in records.values()) and sorted(records) == [("oracle", i) for i in range(3)]
+    assert run.warnings == 0 and not (out / "summary.json").is_file()  # unfinished: --resume maps it again
+
+
+def test_a_system_that_raises_while_mapping_is_a_failed_stage_in_one_line(tmp_path):
+    """As a map that cannot be loaded: one line, exit 1, no trial of that system counted; the
+    others' trials are kept, and --resume maps the failed system again (not the others)."""
+    from test_robustness import one_line_error
+
+    out = tmp_path / "run"
+    config = tmp_path / "faulty.yaml"
+    config.write_text("faulty: {raise_while_mapping: true}\n")
+    args = ["run", str(short_tiny(tmp_path)), "--systems", "faulty,oracle", "--config", str(config), "--out", str(out)]
+    line = one_line_error(CliRunner().invoke(app, [*args, "--workers", "2"]), code=1)
+    assert line == (
+        "error: mapping stage failed, no trial counted (faulty: RuntimeError: faulty: raised while mapping); "
+        f"after fixing it: --resume {out}"
     )
-    assert all(r["success"] for k, r in records.items() if k[0] == "oracle") and len(records) == 6
-    assert run.warnings == 3 and (out / "summary.json").is_file()
+    records = records_of(out)
+    assert sorted(records) == [("oracle", i) for i in range(3)] and all(r["success"] for r in records.values())
+    assert not (out / "summary.json").exists() and not (out / "maps" / "faulty").exists()
+    oracle_map = (out / "mapping" / "oracle.json").stat().st_mtime_ns
+
+    line = one_line_error(CliRunner().invoke(app, ["run", "--resume", str(out), "--workers", "1"]), code=1)
+    assert "mapping stage failed" in line and "(faulty: RuntimeError: faulty: raised while mapping)" in line
+    assert records_of(out) == records and (out / "mapping" / "oracle.json").stat().st_mtime_ns == oracle_map
 
 
 # ---------------------------------------------------------------------------------------------

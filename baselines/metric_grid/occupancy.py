@@ -168,7 +168,8 @@ def read_image(path: Path) -> NDArray[np.uint8]:
             pixels = np.array(data[pos:].split()[: width * height], dtype=np.int64)
         image = pixels.reshape(height, width).astype(np.float64) * (255.0 / maxval)
         return np.round(image).astype(np.uint8)
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    # decoded from the bytes read above: OpenCV given a path that is not UTF-8 crashes the process
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
     if image is None:
         raise ValueError(f"{path}: not an image")
     return image
