@@ -11,8 +11,14 @@ otherwise drive forward. Additions, each small and documented:
 * the lookahead point never passes a *corner* (a vertex where the path turns by more than
   ``corner_angle``) until the robot has come within ``corner_tolerance`` of it or moved past
   it. Any-angle paths bend at vertices right next to (inflated) obstacles, and a lookahead
-  chord across such a bend would cut toward the wall; with the clip the robot leaves the
-  path by at most about ``corner_tolerance`` at corners;
+  chord across such a bend would cut toward the wall;
+* corners are driven as the paper's follower drives every bend: slow down over the last
+  ``corner_slowdown`` metres before one, then, past it, turn in place until the heading error
+  to the next stretch is below ``turn_in_place_until`` (a turn in place that starts above the
+  threshold ends there too). At 5 Hz a robot at full speed moves 0.2 m a tick: it jumped over
+  a 0.15 m corner disc and passed by projection beside it, then arced round, swinging 0.06 m
+  off the path onto door jambs that the planner passes with a few centimetres to spare
+  (BENCHMARKS.md, session 7); with these, 0.02-0.03 m;
 * while driving, a proportional angular correction, and a linear speed that falls smoothly to
   zero as the heading error reaches the turn-in-place threshold (no jump between the modes)
   and slows over the last ``slowdown_distance`` metres of the path.
@@ -46,6 +52,12 @@ class FollowerConfig(BaseModel):
     turn_in_place_threshold: float = Field(
         default=0.5, gt=0, le=math.pi, description="heading error above which the robot turns in place, rad"
     )
+    turn_in_place_until: float = Field(
+        default=0.1,
+        ge=0,
+        le=math.pi,
+        description="once turning in place, keep turning until the heading error is below this, rad (0: the threshold)",
+    )
     angular_gain: float = Field(default=2.0, ge=0, description="turn rate per heading error, 1/s")
     lookahead: float = Field(default=0.6, gt=0, description="distance of the target along the path, m")
     goal_tolerance: float = Field(
@@ -56,7 +68,10 @@ class FollowerConfig(BaseModel):
     slowdown_distance: float = Field(default=1.0, ge=0, description="path length before the end over which the speed falls, m")
     min_linear: float = Field(default=0.1, ge=0, description="speed floor while slowing near the end, m/s")
     corner_angle: float = Field(default=0.35, ge=0, le=math.pi, description="a vertex turning more than this is a corner, rad")
-    corner_tolerance: float = Field(default=0.15, gt=0, description="a corner is passed once the robot is this close to it, m")
+    corner_tolerance: float = Field(default=0.05, gt=0, description="a corner is passed once the robot is this close to it, m")
+    corner_slowdown: float = Field(
+        default=0.5, ge=0, description="distance before a corner over which the speed falls to min_linear, m (0: none)"
+    )
     progress_window: float = Field(default=1.5, gt=0, description="how far ahead of the progress the robot is projected, m")
 
     def for_robot(self, context: Any) -> FollowerConfig:
@@ -116,6 +131,7 @@ class PathFollower:
         self._progress = 0.0
         self._next_corner = 0
         self._reached = False
+        self._turning = False
 
     def clear(self) -> None:
         """Forget the path; commands are zero until the next ``set_path``."""
@@ -125,6 +141,7 @@ class PathFollower:
         self._progress = 0.0
         self._next_corner = 0  # index into _corner_arc of the first corner not yet passed
         self._reached = False
+        self._turning = False  # turning in place (until the heading error is below turn_in_place_until)
 
     @property
     def has_path(self) -> bool:
@@ -190,7 +207,11 @@ class PathFollower:
         heading_error = float(wrap_angle(math.atan2(dy, dx) - pose[2]))
         turn_rate = cfg.angular_gain * heading_error
         angular = max(-cfg.max_angular, min(cfg.max_angular, turn_rate))
-        if abs(heading_error) >= cfg.turn_in_place_threshold:
+        threshold = cfg.turn_in_place_threshold
+        if self._turning and cfg.turn_in_place_until > 0.0:
+            threshold = min(threshold, cfg.turn_in_place_until)
+        self._turning = abs(heading_error) >= threshold
+        if self._turning:
             if angular == 0.0:  # zero gain: still turn, at full rate
                 angular = math.copysign(cfg.max_angular, heading_error)
             return Command(0.0, angular)
@@ -198,11 +219,13 @@ class PathFollower:
         # full speed when aligned, falling to zero at the turn-in-place threshold
         alignment = 1.0 - (heading_error / cfg.turn_in_place_threshold) ** 2
         remaining = self.path_length - self._progress
+        factor = 1.0
         if cfg.slowdown_distance > 0.0:
-            end_factor = min(1.0, remaining / cfg.slowdown_distance)
-            speed = max(cfg.max_linear * end_factor, min(cfg.min_linear, cfg.max_linear))
-        else:
-            speed = cfg.max_linear
+            factor = min(factor, remaining / cfg.slowdown_distance)
+        if cfg.corner_slowdown > 0.0 and self._next_corner < len(self._corner_arc):
+            to_corner = math.hypot(*(self._point_at(self._corner_arc[self._next_corner]) - position))
+            factor = min(factor, to_corner / cfg.corner_slowdown)
+        speed = max(cfg.max_linear * factor, min(cfg.min_linear, cfg.max_linear))
         return Command(speed * alignment, angular)
 
     def _advance(self, position: NDArray[np.float64]) -> None:
@@ -237,6 +260,8 @@ class PathFollower:
                 break
             self._progress = max(self._progress, corner_arc)
             self._next_corner += 1
+            # face the next stretch before driving on (an arc from the corner swings outside it)
+            self._turning = cfg.turn_in_place_until > 0.0
 
     def _target_arc(self) -> float:
         target = min(self._progress + self.config.lookahead, self.path_length)
