@@ -192,7 +192,10 @@ def run(
         typer.Option(help="XY_M,YAW_DEG: uniform error of the initial pose given to systems that take one (0,0: exact)"),
     ] = "0.5,10",
     stop_tolerance: Annotated[
-        float, typer.Option(help="m (at least 0.01): every system that stops by its own estimate stops this close to the goal")
+        float,
+        typer.Option(
+            help="m (0.01 to 0.5, the runner's STOP rule): every system that stops by its own estimate stops this close to the goal"
+        ),
     ] = 0.35,
     goals: Annotated[
         str,
@@ -246,7 +249,10 @@ def run(
             raise ValueError
     except ValueError:
         fail(f"--initial-pose-error: expected two non-negative numbers XY_M,YAW_DEG, got {initial_pose_error!r}")
-    check_number("--stop-tolerance", stop_tolerance, "metres", low=0.01)
+    from runners.metrics import GOAL_TOLERANCE_M
+
+    # a system stopping farther out than the runner's STOP rule would fail every trial
+    check_number("--stop-tolerance", stop_tolerance, "metres", low=0.01, high=GOAL_TOLERANCE_M)
     check_number("--trial-timeout-s", trial_timeout, "seconds", low=1.0, finite=False)
     check_number("--trial-memory-mb", trial_memory_mb, "MB", low=1.0, high=MAX_TRIAL_MEMORY_MB)
     if goals not in ("map", "native"):

@@ -144,7 +144,7 @@ FLAGS = {
     "--workers": ["0", "1", "2"],
     "--setting": ["precise", "nope", ",", "precise,noisy", "noisy,noisy"],
     "--initial-pose-error": ["0,0", "-1,2", "a", "1,2,3", "inf,1", "nan,0"],
-    "--stop-tolerance": ["0", "0.35", "-1", "nan", "inf"],
+    "--stop-tolerance": ["0", "0.35", "-1", "nan", "inf", "0.6"],
     "--trial-timeout-s": ["60", "0", "nan", "inf"],
     "--trial-memory-mb": ["512", "0", "nan", "inf", "1e300"],
     "--goals": ["map", "x"],
