@@ -325,6 +325,8 @@ class Navigator:
                 "reached_by_composition",
                 "reached_short",
                 "explore_moves",
+                "explore_blocked",
+                "tentative_blocked",
             ],
             0,
         )
@@ -428,7 +430,13 @@ class Navigator:
         return stamp - self._progress_mark[0] > 5.0
 
     def _explore_step(self, obs: Observation) -> Command:
-        """No hypothesis: drive toward the most open direction of the robot's own scan."""
+        """No hypothesis: drive toward the most open direction of the robot's own scan. The way ahead
+        is checked against every new scan: a path planned through cells the first scan did not see
+        (a wall seen edge-on from a doorway) is given up at the first scan that shows a wall on it."""
+        if self._explore is not None and self.follower.has_path and self._explore_blocked(obs):
+            self._explore = None
+            self.follower.clear()
+            self.counters["explore_blocked"] += 1
         if self._explore is None or self.follower.reached or not self.follower.has_path:
             path = self._open_space_path(obs)
             if path is None:
@@ -439,13 +447,32 @@ class Navigator:
         start_odom, _ = self._explore
         return self.follower.command(between(start_odom, obs.odom))
 
+    def _scan_grid(self, obs: Observation) -> tuple[NDArray, GridFrame]:
+        """The robot's own scan as a local grid (FREE / OCCUPIED / unknown) centred on the robot."""
+        grid_config = self.maintainer.grid_config
+        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
+        return grid_from_points(obs.points, grid_config), frame
+
+    def _explore_blocked(self, obs: Observation) -> bool:
+        """Does a return of this scan lie within the robot's radius of the exploring path ahead?"""
+        start_odom, _ = self._explore
+        return len(self._scan_on_path(obs, between(start_odom, obs.odom))) > 0
+
+    def _scan_on_path(self, obs: Observation, pose: NDArray) -> NDArray[np.float64]:
+        """The scan's obstacle returns (in the path's frame, the robot at ``pose`` there) within the
+        robot's radius of the path ahead: the robot would touch them."""
+        points = obstacle_points(obs.points, self.maintainer.grid_config)
+        if not len(points) or not self.follower.has_path:
+            return np.zeros((0, 2))
+        xy = transform_points(pose, np.asarray(points[:, :2], dtype=np.float64))
+        ahead = np.vstack([pose[None, :2], self.follower.path_ahead(self.config.block_check_distance)])
+        return xy[distance_to_polyline(xy, ahead) < self.robot_radius]
+
     def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
         """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or
         twice, or half that) away, the one farthest from where the start-up has already driven (the
         way out of a room leads through its door, not round the room again), forward first on ties."""
-        grid_config = self.maintainer.grid_config
-        grid = grid_from_points(obs.points, grid_config)
-        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
+        grid, frame = self._scan_grid(obs)
         # the local planner's fallbacks: with its margin, then the robot's radius alone (a narrow
         # door); in the scan's free space, then between the walls it saw (a door seen at a slant
         # leaves little free space); the ends in free space it saw
@@ -499,6 +526,12 @@ class Navigator:
             self.status = NavStatus(Status.REACHED)
             return Command()
         self._remember_obstacles(obs, vertex, pose)
+        if tentative:
+            # the hypothesis may be another place's map: what the scan shows on the way is an obstacle
+            hits = self._scan_on_path(obs, pose)
+            if len(hits):
+                self.obstacles.mark(hits)
+                self.counters["tentative_blocked"] += 1
         if self._needs_plan(obs, vertex, pose):
             if not self._plan(obs, vertex, pose, tentative):
                 return Command()

@@ -58,8 +58,12 @@ class ObstacleMemory:
         """
         if len(self._cells):
             self._cells = self._cells[~self._seen_through(pose, np.asarray(scan_xy)[:, :2], max_range)]
-        if len(new_xy):
-            cells = np.floor(np.asarray(new_xy, dtype=np.float64)[:, :2] / self.resolution).astype(np.int64)
+        self.mark(new_xy)
+
+    def mark(self, xy: NDArray) -> None:
+        """Mark points (M, 2+) of the planning frame."""
+        if len(xy):
+            cells = np.floor(np.asarray(xy, dtype=np.float64)[:, :2] / self.resolution).astype(np.int64)
             self._cells = np.unique(np.vstack([self._cells, cells]), axis=0)[-self.max_points :]
 
     def _seen_through(self, pose: NDArray, scan_xy: NDArray, max_range: float) -> NDArray[np.bool_]:

@@ -249,3 +249,42 @@ def test_a_way_found_only_through_unknown_space_far_round_is_refused():
     assert guess is not None and guess.points[:, 1].max() > 1.2 and guess.length > 3 * 6.0  # what is refused
     step = planner.plan(union, np.zeros(3), np.array([-2.5, 1.8]))  # just through the gap
     assert step is not None and planner.levels[step.level][0] == "unknown"  # short: kept
+
+
+def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
+    """Exploring paths are planned in one scan's grid, unknown cells counted free (a door seen at a
+    slant), and driving by an unconfirmed hypothesis follows a path in a map that may be another
+    place's: in both, returns of a later scan on the way are what the robot would hit."""
+    from navtopo.types import Observation
+    from runners.mapping import context_for
+
+    run, _ = tiny_graph
+    entry = get_system("navtopo")
+    sim = Simulator(tiny, seed=tiny.spec.seed)
+    nav = entry.load(run.map_dir("navtopo"), entry.default_config(), context_for(entry, tiny, sim)).navigator
+    radius = tiny.spec.robot.radius
+    # a wall 1 m ahead across the way (returns at lidar height), and one 2 m to the left along it
+    across = np.stack([np.full(41, 1.0), np.linspace(-1.0, 1.0, 41), np.full(41, 0.6)], axis=1)
+    along = np.stack([np.linspace(-1.0, 3.0, 81), np.full(81, 2.0), np.full(81, 0.6)], axis=1)
+    obs = Observation(stamp=0.0, points=np.vstack([across, along]).astype(np.float32), odom=np.zeros(3))
+    straight = np.array([[0.0, 0.0], [3.0, 0.0]])
+    nav.follower.set_path(straight)
+    hits = nav._scan_on_path(obs, np.zeros(3))
+    assert len(hits) and np.allclose(hits[:, 0], 1.0) and np.abs(hits[:, 1]).max() < radius  # the wall's middle only
+    nav.follower.set_path(np.array([[0.0, 0.0], [-1.0, 0.0]]))
+    assert len(nav._scan_on_path(obs, np.zeros(3))) == 0  # behind the robot, off the way
+
+    # an exploring move through that wall is given up for one that keeps clear of it
+    nav.follower.set_path(straight)
+    nav._explore = (np.zeros(3), straight)
+    nav._explore_step(obs)
+    assert nav.counters["explore_blocked"] == 1
+    if nav.follower.has_path:
+        assert se2.distance_to_polyline(across[:, :2], nav.follower.path).min() >= radius
+
+    # a tentative drive marks them as obstacles, so that its next local plan goes round
+    nav.obstacles.clear()
+    nav.follower.set_path(straight)
+    hits = nav._scan_on_path(obs, np.zeros(3))
+    nav.obstacles.mark(hits)
+    assert nav._path_blocked(np.zeros(3))
