@@ -292,3 +292,34 @@ def test_a_loop_closes_where_the_robot_passes_a_location_without_leaving_its_own
     unjoined = unjoined_neighbours(positions, pairs, scenario.world.clearances_at, scenario.spec.robot.radius, radius=8.0)
     assert unjoined == ([] if closure_radius else [(first, last)])
     assert system.maintainer.counters.closures_from_inside == (1 if closure_radius else 0)
+
+
+def test_a_place_far_from_the_robot_by_the_current_locations_hint_is_no_loop_closure_candidate():
+    """Hints drift apart by what odometry travelled between their making: after a long route the
+    gate around the robot's odometry is wide (3 m + 5 % of 1.3 km), but the robot's pose in the
+    current location is scan-matched, and through that location's hint only the drift between the
+    two locations' making counts. A location 26 m away that looks alike is left out; one 2 m away
+    stays, with the gate it had."""
+    from navtopo.local_grid import CroppedGrid, GridConfig
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    graph = TopologicalGraph(4)
+    grid = CroppedGrid.from_grid(np.zeros((GridConfig().size, GridConfig().size), np.uint8))
+    maintainer = GraphMaintainer(
+        graph, lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), MappingConfig(), LocalizationConfig()
+    )
+    # made at these odometers: the robot is back in location 2, made early on; 0 was made 360 m later
+    hints = {0: ([24.3, 17.2, -1.6], 390.0), 1: ([5.0, 2.0, 0.0], 40.0), 2: ([3.0, -1.0, 0.0], 30.0)}
+    for vertex, (hint, travelled) in hints.items():
+        graph.add_vertex(grid, np.ones(4), np.array(hint), float(vertex), travelled)
+        maintainer._odometer_at_vertex[vertex] = travelled
+    maintainer.current, maintainer.pose_in_current = 2, np.array([0.3, 3.8, 0.0])  # the robot at (3.3, 2.8)
+    maintainer._odometer = maintainer._odometer_verified = 1310.0
+    robot, gates = maintainer._hint_gates(np.array([3.3, 2.8, 1.6]), base=3.0)
+    assert np.allclose(robot[:2], [3.3, 2.8])
+    # 26 m off: the odometry gate alone (3 + 0.05 x 920 m = 49 m) let it in; through location 2's hint
+    # the gate is 3 + 0.05 x (360 + 10) m = 21.5 m
+    assert 0 not in gates
+    assert gates[1] == pytest.approx(3.0 + 0.05 * 1270.0)
