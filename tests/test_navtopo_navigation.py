@@ -136,10 +136,7 @@ def test_cold_starts_localize_without_a_pose_and_reach_goals_in_other_locations(
         assert record["efficiency"] >= 0.9
         localized = record["startup_localization"]
         assert localized["right"] and localized["error_m"] < 0.2 and localized["seconds"] <= 10.0
-        # precise odometry: the hints are the truth, but the relaxed poses also weigh the scan-matched
-        # edges, and from three edges 0.4 deg off (median) the hints' noise is estimated above zero:
-        # 0.047-0.050 m here since the follower's corner rules changed the tour (0.000 before)
-        assert record["goal_conversion_error_m"] < 0.08
+        assert record["goal_conversion_error_m"] < 0.05  # precise odometry: the hints are the truth
         assert record["tracking_error_m"]["max"] < 0.3
     # the goals lie in other locations than the starts: the goal server routed over the graph
     anchors = np.array([row[1:3] for row in report["anchors"]])
