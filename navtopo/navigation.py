@@ -433,7 +433,7 @@ class Navigator:
         """No hypothesis: drive toward the most open direction of the robot's own scan. The way ahead
         is checked against every new scan: a path planned through cells the first scan did not see
         (a wall seen edge-on from a doorway) is given up at the first scan that shows a wall on it."""
-        if self._explore is not None and self.follower.has_path and self._explore_blocked(obs):
+        if self._explore is not None and len(self._scan_on_path(obs, between(self._explore[0], obs.odom))):
             self._explore = None
             self.follower.clear()
             self.counters["explore_blocked"] += 1
@@ -447,32 +447,25 @@ class Navigator:
         start_odom, _ = self._explore
         return self.follower.command(between(start_odom, obs.odom))
 
-    def _scan_grid(self, obs: Observation) -> tuple[NDArray, GridFrame]:
-        """The robot's own scan as a local grid (FREE / OCCUPIED / unknown) centred on the robot."""
-        grid_config = self.maintainer.grid_config
-        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        return grid_from_points(obs.points, grid_config), frame
-
-    def _explore_blocked(self, obs: Observation) -> bool:
-        """Does a return of this scan lie within the robot's radius of the exploring path ahead?"""
-        start_odom, _ = self._explore
-        return len(self._scan_on_path(obs, between(start_odom, obs.odom))) > 0
-
     def _scan_on_path(self, obs: Observation, pose: NDArray) -> NDArray[np.float64]:
         """The scan's obstacle returns (in the path's frame, the robot at ``pose`` there) within the
         robot's radius of the path ahead: the robot would touch them."""
-        points = obstacle_points(obs.points, self.maintainer.grid_config)
-        if not len(points) or not self.follower.has_path:
+        if not self.follower.has_path:
             return np.zeros((0, 2))
-        xy = transform_points(pose, np.asarray(points[:, :2], dtype=np.float64))
         ahead = np.vstack([pose[None, :2], self.follower.path_ahead(self.config.block_check_distance)])
+        points = np.asarray(obstacle_points(obs.points, self.maintainer.grid_config)[:, :2], dtype=np.float64)
+        # returns farther from the robot than the way ahead reaches (plus the radius) cannot touch it
+        reach = float(np.hypot(*(ahead - pose[:2]).T).max()) + self.robot_radius
+        xy = transform_points(pose, points[np.hypot(points[:, 0], points[:, 1]) <= reach])
         return xy[distance_to_polyline(xy, ahead) < self.robot_radius]
 
     def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
         """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or
         twice, or half that) away, the one farthest from where the start-up has already driven (the
         way out of a room leads through its door, not round the room again), forward first on ties."""
-        grid, frame = self._scan_grid(obs)
+        grid_config = self.maintainer.grid_config
+        grid = grid_from_points(obs.points, grid_config)
+        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
         # the local planner's fallbacks: with its margin, then the robot's radius alone (a narrow
         # door); in the scan's free space, then between the walls it saw (a door seen at a slant
         # leaves little free space); the ends in free space it saw

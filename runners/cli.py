@@ -194,7 +194,7 @@ def run(
     stop_tolerance: Annotated[
         float,
         typer.Option(
-            help="m (0.01 to 0.5, the runner's STOP rule): every system that stops by its own estimate stops this close to the goal"
+            help="m (0.01 to 0.5, the runner's STOP rule): systems that stop by their own estimate stop this close to the goal"
         ),
     ] = 0.35,
     goals: Annotated[
@@ -241,8 +241,7 @@ def run(
         bad = [x for x in setting_list if x not in SETTINGS]
         if bad or not setting_list:
             fail(f"--setting: unknown setting {', '.join(bad) or repr(setting)} (choose from {', '.join(SETTINGS)})")
-        if len(set(setting_list)) < len(setting_list):
-            fail(f"--setting {setting!r}: a setting is named twice (the same run twice)")
+        once_each("--setting", setting, setting_list, "a setting is named twice (the same run twice)")
     try:
         error_xy, error_yaw = (float(v) for v in initial_pose_error.split(","))
         if not (0 <= error_xy < math.inf and 0 <= error_yaw < math.inf):
@@ -268,8 +267,7 @@ def run(
             fail(f"--seeds: not a list of integers: {seeds!r}")
         if not seed_list:
             fail(f"--seeds {seeds!r}: give at least one seed")
-        if len(set(seed_list)) < len(seed_list):
-            fail(f"--seeds {seeds!r}: a seed is given twice (the same run twice)")
+        once_each("--seeds", seeds, seed_list, "a seed is given twice (the same run twice)")
     for flag, value in [("--seed", seed)] + [("--seeds", s) for s in seed_list]:
         if value is not None and value < 0:
             fail(f"{flag} {value}: a seed is a non-negative integer")
@@ -401,6 +399,12 @@ def check_number(flag: str, value: float | None, unit: str, low: float, high: fl
         fail(f"{flag} {value:g}: expected {'a finite' if finite else 'a'} number of {unit}, {bound}")
 
 
+def once_each(flag: str, raw: str, items: list, what: str) -> None:
+    """Refuse (one line, exit 2) a comma list ``raw`` of ``flag`` whose parsed ``items`` repeat one."""
+    if len(set(items)) < len(items):
+        fail(f"{flag} {raw!r}: {what}")
+
+
 def _systems_option(systems: str) -> list[str]:
     """The names of ``--systems``: known, at least one, none twice (else one line, exit 2)."""
     from runners.systems import system_names
@@ -412,8 +416,7 @@ def _systems_option(systems: str) -> list[str]:
         fail(f"--systems: unknown system(s) {', '.join(unknown)} (available: {', '.join(sorted(known))})")
     if not names:
         fail(f"--systems {systems!r}: give at least one system (available: {', '.join(sorted(known))})")
-    if len(set(names)) < len(names):
-        fail(f"--systems {systems!r}: a system is named twice")
+    once_each("--systems", systems, names, "a system is named twice")
     return names
 
 
@@ -894,8 +897,8 @@ def sweep_scaling(
         fail(
             f"--lengths: expected comma-separated lengths of {MIN_SWEEP_LENGTH_M:g} to {MAX_SWEEP_LENGTH_M:g} m, got {lengths!r}"
         )
-    if len({round(v) for v in length_list}) < len(length_list):
-        fail(f"--lengths {lengths!r}: a length is given twice (to the metre: each has its folder <length>m)")
+    metres = [round(v) for v in length_list]
+    once_each("--lengths", lengths, metres, "a length is given twice (to the metre: each has its folder <length>m)")
     check_number("--route-factor", route_factor, "times the corridor length", low=0.5)
     if route_factor * max(length_list) > MAX_ROUTE_M:
         fail(f"--route-factor {route_factor}: the route of the {max(length_list):g} m building would pass {MAX_ROUTE_M:g} m")
@@ -945,8 +948,7 @@ def sweep_drift(
     bad = [v for v in level_list if v not in SETTINGS]
     if bad or not level_list:
         fail(f"--levels: unknown setting(s) {', '.join(bad) or repr(levels)} (choose from {', '.join(SETTINGS)})")
-    if len(set(level_list)) < len(level_list):
-        fail(f"--levels {levels!r}: a level is named twice")
+    once_each("--levels", levels, level_list, "a level is named twice")
     names = _systems_option(systems)
     writable_dir(out, "--out")
     _load(scenario)  # a bad scenario is one line before any work
