@@ -65,7 +65,7 @@ def main() -> int:
         )
     parse_spec(spec, args.output)  # the generators' output must be a valid scenario; raises otherwise
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(yaml.safe_dump(spec, sort_keys=False, default_flow_style=None, width=120))
+    args.output.write_text(yaml.safe_dump(spec, sort_keys=False, default_flow_style=None, width=120), encoding="utf-8")
     print(args.output)
     return 0
 

@@ -309,7 +309,7 @@ def grid_layer(run: Run, system: str) -> GridLayer:
         raise MapFormatError(f"{system}: the grid lies in the map frame, whose pose needs ground_truth/raster.yaml (missing)")
     meta_path = map_dir / "map.yaml"
     try:
-        meta = yaml.safe_load(meta_path.read_text())
+        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
         image = read_png(map_dir / str(meta["image"]))
         resolution = float(meta["resolution"])
         ox, oy, oyaw = (float(v) for v in (list(meta.get("origin", [0.0, 0.0, 0.0])) + [0.0])[:3])

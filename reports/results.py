@@ -375,7 +375,7 @@ class Run:
             missing.append("ground_truth/")
             return None
         try:
-            raster = _validate(Raster, yaml.safe_load(raster_yaml.read_text()), raster_yaml)
+            raster = _validate(Raster, yaml.safe_load(raster_yaml.read_text(encoding="utf-8")), raster_yaml)
         except (yaml.YAMLError, OSError, UnicodeDecodeError) as exc:
             raise RunFormatError(f"{raster_yaml}: not valid YAML ({exc})".replace("\n", " ")) from None
         image = None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Annotated, NoReturn
@@ -229,7 +230,7 @@ def run(
     from runners.run import RunOptions, scenario_fingerprint
     from runners.systems import system_names
 
-    _check_executor(executor, ray_address)
+    _check_executor(executor, ray_address, workers)
     limits = {"trial_wall_s": trial_timeout, "trial_memory_mb": trial_memory_mb}
     known = system_names()
     names = _systems_option(systems) if resume is None else []  # a resume runs the manifest's systems
@@ -464,8 +465,12 @@ def _run_suite(path: Path, out: Path, config_file: Path | None, common: dict) ->
             _run_all(todo, pool, again=f"run the same command again to finish the suite in {out}")
 
 
-def _check_executor(executor: str, ray_address: str | None) -> None:
-    """Refuse an unknown executor, Ray when it is not installed, an address without Ray: one line, exit 2."""
+LOCAL_WORKERS_PER_CORE = 4  # each local worker holds a simulator and the network weights (~0.5 GB)
+
+
+def _check_executor(executor: str, ray_address: str | None, workers: int | None = None) -> None:
+    """Refuse an unknown executor, Ray when it is not installed, an address without Ray, more local
+    workers than the machine can hold: one line, exit 2."""
     from runners.executors import ExecutorUnavailable, check_executor
 
     try:
@@ -474,6 +479,12 @@ def _check_executor(executor: str, ray_address: str | None) -> None:
             raise ExecutorUnavailable("--ray-address: only with --executor ray")
     except ExecutorUnavailable as exc:
         fail(str(exc))
+    cores = os.cpu_count() or 1
+    if executor == "local" and workers is not None and workers > LOCAL_WORKERS_PER_CORE * cores:
+        fail(
+            f"--workers {workers}: more than {LOCAL_WORKERS_PER_CORE} per core on this machine ({cores} cores; each "
+            "worker holds a simulator and the network weights, ~0.5 GB); use --executor ray for a cluster"
+        )
 
 
 @contextlib.contextmanager
@@ -971,7 +982,7 @@ def _run_sweep(options, run_sweep) -> list[Path]:
     sweep), opened once the sweep has generated and checked its buildings and kept runs."""
     from runners.sweep import SweepError
 
-    _check_executor(options.executor, options.ray_address)
+    _check_executor(options.executor, options.ray_address, options.workers)
 
     def run_all(todo: list) -> None:
         if todo:

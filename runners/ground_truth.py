@@ -105,7 +105,7 @@ def write_ground_truth(scenario: Scenario, run_root: Path, trial_count: int | No
     tmp.write_bytes(png.tobytes())
     tmp.replace(folder / "raster.png")
     tmp = folder / ".raster.yaml.tmp"
-    tmp.write_text(yaml.safe_dump(raster_yaml(scenario), sort_keys=False))
+    tmp.write_text(yaml.safe_dump(raster_yaml(scenario), sort_keys=False), encoding="utf-8")
     tmp.replace(folder / "raster.yaml")
     write_json(folder / "trials.json", trials_json(scenario, trial_count))
     write_json(folder / "route.json", route_json(scenario))

@@ -24,7 +24,7 @@ def scenario_files(scenario: Scenario) -> list[Path]:
     if scenario.spec.world.map is not None:
         map_yaml = scenario.path.parent / scenario.spec.world.map.yaml
         files.append(map_yaml)
-        for line in map_yaml.read_text().splitlines():
+        for line in map_yaml.read_text(encoding="utf-8", errors="replace").splitlines():
             if line.strip().startswith("image:"):
                 image = map_yaml.parent / line.split(":", 1)[1].strip()
                 if image.is_file():

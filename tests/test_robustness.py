@@ -583,6 +583,8 @@ def test_scans_with_no_returns_are_mapped_without_error(name):
     [
         (["run", "tiny", "--trials", "-1"], "Invalid value for '--trials'"),
         (["run", "tiny", "--workers", "0"], "Invalid value for '--workers'"),
+        (["run", "tiny", "--workers", "100000"], "--workers 100000: more than 4 per core"),
+        (["sweep", "drift", "--workers", "100000"], "--workers 100000: more than 4 per core"),
         (["run", "tiny", "--seed", "abc"], "Invalid value for '--seed'"),
         (["run", "tiny", "--bogus"], "No such option: --bogus"),
         (["nope"], "No such command 'nope'"),
