@@ -93,6 +93,8 @@ class Localizer:
         self.config = config
         self.matching = matching
         self.grid_config = grid_config
+        # judge every match by the thresholds without a guess (a start-up hypothesis among rivals)
+        self.strict = False
 
     def verify(
         self,
@@ -109,7 +111,12 @@ class Localizer:
         without a guess) still says the place is right, but its pose is less sure than the guess
         (few walls in common fix the rotation poorly): the guess is kept as the pose."""
         result = match(
-            self.grids.get(vertex), query, initial_guess=guess, config=self.matching, grid_config=self.grid_config, strict=strict
+            self.grids.get(vertex),
+            query,
+            initial_guess=guess,
+            config=self.matching,
+            grid_config=self.grid_config,
+            strict=strict or self.strict,
         )
         if not result.accepted:
             return None

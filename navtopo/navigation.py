@@ -58,6 +58,11 @@ class StartupConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     top_k: int = Field(10, ge=1, description="place-recognition candidates verified at each look")
+    check_all: bool = Field(
+        True,
+        description="verify every location, not only the top_k, at a look with no hypothesis (at most once a metre) and "
+        "before a commitment",
+    )
     confirm_looks: int = Field(3, ge=1, description="looks that must verify a hypothesis before it is committed")
     confirm_distance: float = Field(2.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
     confirm_places: int = Field(
@@ -171,7 +176,9 @@ class Startup:
         self._last_look_odom: NDArray[np.float64] | None = None
         self._odometer = 0.0
         self._last_odom: NDArray[np.float64] | None = None
+        self._checked_at = -np.inf  # the odometer at the last look that verified every location
         self.seen = 0
+        self.checks = 0
 
     def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
         m = self.maintainer
@@ -205,11 +212,21 @@ class Startup:
         self._last_look_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         self.looks += 1
         self._look(obs, driven, route)
-        return self._committed()
+        committed = self._committed()
+        if committed is not None and self.config.check_all and self._odometer > self._checked_at:
+            # place recognition may rank the right location low (a look-alike ranked above it, 29 m
+            # away, committed on a loop scene): no commitment while another place verifies too
+            if self._recognise(obs, check_all=True):
+                return None
+        return committed
 
     def _look(self, obs: Observation, driven: Hypothesis | None, route: list[int] | None) -> None:
-        # the live hypotheses, each checked where it says the robot is
+        # the live hypotheses, each checked where it says the robot is; among rivals, by the
+        # thresholds without a guess (a look-alike matches a guess well enough, not as well as
+        # the right place does)
+        rivals = len(self.hypotheses) > 1
         for h in self.hypotheses:
+            h.tracker.localizer.strict = rivals
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
             if h.tracker.last_verified:
                 h.support, h.misses = h.support + 1, 0
@@ -217,15 +234,27 @@ class Startup:
             else:
                 h.misses += 1
         self.hypotheses = [h for h in self.hypotheses if h.misses < self.config.drop_after]
-        # new candidates from place recognition, verified by scan matching
+        check_all = self.config.check_all and not self.hypotheses and self._odometer >= self._checked_at + 1.0
+        self._recognise(obs, check_all)
+
+    def _recognise(self, obs: Observation, check_all: bool) -> int:
+        """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
+        matching; how many were added."""
         m = self.maintainer
         query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
-        found = m.localizer.localize(query, self.describe(obs.points), top_k=self.config.top_k)
+        if check_all:
+            self._checked_at = self._odometer
+            self.checks += 1
+        top_k = len(m.graph) if check_all else self.config.top_k
+        found = m.localizer.localize(query, self.describe(obs.points), top_k=top_k)
+        added = 0
         for located in found:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex}))
                 self.seen += 1
+                added += 1
+        return added
 
     def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
         """Does (vertex, pose) put the robot where ``h`` does? Compared through the graph, or, for

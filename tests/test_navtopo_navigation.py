@@ -285,3 +285,48 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     hits = nav._scan_on_path(obs, np.zeros(3))
     nav.obstacles.mark(hits)
     assert nav._path_blocked(np.zeros(3))
+
+
+def _startup(graph: TopologicalGraph, describe, **config):
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.navigation import Startup, StartupConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
+    return Startup(maintainer, describe, StartupConfig(**config))
+
+
+def test_a_start_up_finds_the_place_that_place_recognition_ranks_last(tiny):
+    """Place recognition can rank the right location below its top_k (on a loop scene a look-alike
+    29 m away came first and the right one 50th of 62): the start-up verifies every location at its
+    first look, and again before it commits, so the right one is found and the drive confirms it."""
+    from navtopo.types import Observation
+
+    a, b = np.array([2.0, 0.0, 0.0]), np.array([6.0, 0.0, 0.0])
+    with Simulator(tiny, seed=0) as sim:
+        grids = [_true_grid(sim, a), _true_grid(sim, b)]
+        # the robot drives from a little behind a to b; the odometry frame is its first pose
+        poses = [np.array([1.5 + 0.25 * k, 0.1, 0.05]) for k in range(19)]
+        scans = [sim.scan(p) for p in poses]
+    empty = np.full((GRID.size, GRID.size), FREE, np.uint8)  # decoys: nothing to match against
+    graph = _graph([list(a), list(b), [40, 40, 0], [60, 40, 0], [80, 40, 0]], [(0, 1)], grids + [empty] * 3)
+    descriptors = graph.descriptors
+    descriptors[:] = [[1, 0, 0, 0], [1, 0, 0, 0], [0, 1, 0, 0], [0, 1, 0, 0], [0, 1, 0, 0]]
+    describe = lambda points: np.array([0, 1, 0, 0], np.float32)  # noqa: E731 - nearest to the decoys
+
+    def drive(startup):
+        for k, (pose, scan) in enumerate(zip(poses, scans, strict=True)):
+            committed = startup.step(Observation(0.5 * k, scan, se2.between(poses[0], pose)))
+            if committed is not None:
+                return k, committed
+        return None, None
+
+    found = _startup(graph, describe, top_k=1)
+    k, committed = drive(found)
+    assert committed is not None and committed.vertex in (0, 1), "the right place, though ranked last"
+    truth = se2.between(graph.vertices[committed.vertex].pose_hint, poses[k])
+    assert np.hypot(*(committed.pose[:2] - truth[:2])) < 0.1
+    assert found.checks >= 2  # at the first look and before the commitment
+    blind = _startup(graph, describe, top_k=1, check_all=False)
+    assert drive(blind) == (None, None) and blind.seen == 0  # the top_k alone never proposes it
