@@ -3,10 +3,13 @@
 
 Start-up localization (``Startup``). The robot is given no pose. Each *look* (after every 0.25 m or
 15° of motion, the graph maintainer's cadence) retrieves the ``top_k`` locations whose descriptors
-are nearest to the scan's and verifies each by scan matching; a verified candidate that no live
+are nearest to the scan's and verifies each by scan matching — every location instead at a look
+with no hypothesis and before a commitment (``check_all``: place recognition may rank the right
+place far down); a verified candidate that no live
 hypothesis explains becomes a hypothesis ``(vertex, pose)``, tracked from then on by odometry and
 scan matching like the robot itself (inside its location, or along an edge). A look that verifies a
-hypothesis supports it; two looks in a row that do not drop it. The robot commits to a hypothesis
+hypothesis supports it; two looks in a row that do not drop it; while rivals live, a look verifies
+only by the thresholds without a guess. The robot commits to a hypothesis
 only when it is the one left, has been supported at ``confirm_looks`` looks, has survived
 ``confirm_distance`` metres of motion and has been verified in ``confirm_places`` locations (or
 survived ``confirm_distance_one_place`` metres): a wrong localization is worse than none (repeated
