@@ -353,3 +353,25 @@ def test_plot_graph_draws_a_graph_map_as_png_and_svg(crafted, tmp_path):
     assert (tmp_path / "graph.png").stat().st_size > 1000 and (tmp_path / "graph.svg").is_file()
     result = CliRunner().invoke(app, ["plot-graph", str(crafted), "-o", str(tmp_path / "g.png"), "--system", "metric_grid"])
     assert result.exit_code == 2 and "no graph map of metric_grid" in result.output
+
+
+def test_the_readme_section_is_the_runs_own_table_and_plots(crafted, tmp_path):
+    """tools/readme_bench.py: the README's bench section is replaced by the run's report table and
+    plots, the text round it kept; a README without the markers is refused."""
+    readme, images = tmp_path / "README.md", tmp_path / "img"
+    images.mkdir()
+    readme.write_text("# top\n\n<!-- bench:start -->\nold\n<!-- bench:end -->\n\n## after\n", encoding="utf-8")
+    tool = [sys.executable, str(Path(__file__).resolve().parent.parent / "tools" / "readme_bench.py"), str(crafted)]
+    done = subprocess.run([*tool, "--readme", str(readme), "--images", str(images)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    text = readme.read_text(encoding="utf-8")
+    assert text.startswith("# top\n\n<!-- bench:start -->") and text.endswith("<!-- bench:end -->\n\n## after\n")
+    assert "old" not in text and "| crafted | precise | navtopo | 5/6 (83 %)" in text
+    table = (crafted / "report" / "table.md").read_text(encoding="utf-8")
+    assert table.split("\n", 1)[1].strip() in text
+    for name in ("trajectories_navtopo", "planning", "map_navtopo"):
+        assert f"docs/img/bench_{name}.png" in text
+        assert (images / f"bench_{name}.png").read_bytes() == (crafted / "report" / "plots" / f"{name}.png").read_bytes()
+    readme.write_text("# no markers\n", encoding="utf-8")
+    refused = subprocess.run([*tool, "--readme", str(readme), "--images", str(images)], capture_output=True, text=True)
+    assert refused.returncode == 2 and "expected one <!-- bench:start -->" in refused.stderr
