@@ -23,10 +23,24 @@ def _run(scenario: str, setting: str, out: Path) -> dict:
     return json.loads((out / "summary.json").read_text())
 
 
+def _two_laps(tmp_path: Path) -> Path:
+    """loop_office with a route of two laps: its tour (799 m) covers the building once, so the
+    bundled route's second half maps new places by construction; here the second lap (the tour
+    backwards) revisits every place, and a location made there is a place mapped twice."""
+    text = (ROOT / "scenarios" / "bundled" / "loop_office.yaml").read_text(encoding="utf-8")
+    assert "auto: {min_length: 600.8}" in text
+    path = tmp_path / "loop_office_two_laps.yaml"
+    path.write_text(text.replace("auto: {min_length: 600.8}", "auto: {min_length: 1200}"), encoding="utf-8")
+    return path
+
+
 @pytest.mark.parametrize("setting", ["precise", "noisy"])
 def test_navtopo_maps_a_building_with_loops_without_mapping_places_twice(setting, tmp_path):
-    _run("loop_office", setting, tmp_path / "run")
-    mapping = json.loads((tmp_path / "run" / "mapping" / "navtopo.json").read_text())
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "runners.cli", "run", str(_two_laps(tmp_path)), "--systems", "navtopo", "--trials", "0"]
+    result = subprocess.run(command + ["--setting", setting, "--out", str(out)], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    mapping = json.loads((out / "mapping" / "navtopo.json").read_text())
     assert mapping["edge_error"]["translation_m"]["max"] <= 0.3
     assert mapping["edge_error"]["rotation_deg"]["max"] <= 3.0
     assert mapping["vertices_second_half_share"] <= 0.1
