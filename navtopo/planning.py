@@ -56,6 +56,12 @@ class PlanningConfig(BaseModel):
     union_cache: int = Field(6, ge=1, description="union grids kept (an LRU cache over the neighbourhood)")
     target_step: float = Field(0.2, gt=0, description="spacing of the points tried along the global path (lookahead)")
     target_clearance: float = Field(0.05, ge=0, description="a lookahead target keeps this much more than the path's margin")
+    target_turn_back: float = Field(
+        1.0,
+        gt=0,
+        description="m: where the global path comes back this much nearer the robot than it has been, the lookahead "
+        "stops (a path out to a vertex and back, round a place the graph joins the long way)",
+    )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     unknown_detour: float = Field(
         1.5,
@@ -285,6 +291,14 @@ class LocalPlanner:
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
         leaves = np.flatnonzero(~free[first:])
         end = first + (int(leaves[0]) if len(leaves) else len(samples) - first)
+        # a path that goes out to a vertex and comes back past the robot (two locations at one place
+        # joined only through a third) ends there too: a target on its way back, beside the robot,
+        # takes the robot toward the far vertex's neighbour without reaching the vertex that lets
+        # it change location, and the next plan turns it round again (loop_office, precise)
+        distance = np.hypot(*(samples - start[:2]).T)
+        back = np.flatnonzero(distance < np.maximum.accumulate(distance) - self.config.target_turn_back)
+        if len(back):
+            end = min(end, int(back[0]))
         candidates = np.flatnonzero(free[:end] & beyond_next[:end])
         return samples[candidates[-1]] if len(candidates) else route[0]
 

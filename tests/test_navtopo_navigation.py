@@ -220,6 +220,22 @@ def test_the_lookahead_target_stops_where_the_route_first_leaves_the_known_free_
     assert abs(before[1]) < 0.5 and 1.0 <= before[0] < 2.5 - 0.3
 
 
+def test_the_lookahead_target_does_not_follow_a_path_that_comes_back_past_the_robot():
+    """A global path out to a vertex 7 m ahead and back to one beside the robot (two locations at one
+    junction, joined only through the far one): the target stays on the way out, all in free space."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    graph = _graph([[0.0, 0.0, 0.0]], [], [np.full((GRID.size, GRID.size), FREE, np.uint8)])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    planner = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(smoothing="lookahead"))
+    start = np.array([1.0, 2.5, 0.0])
+    out_and_back = np.array([[1.2, 9.5], [1.5, 1.5], [-8.0, 1.5]])
+    target = planner.target(union, start, out_and_back)
+    assert target[1] >= 8.4 and abs(target[0] - 1.2) < 0.1  # on the way out, within a metre of its end
+    onward = np.array([[1.2, 9.5], [1.5, 12.0]])  # a path that goes on: the lookahead runs to its end
+    assert np.allclose(planner.target(union, start, onward), [1.5, 12.0])
+
+
 def test_a_way_found_only_through_unknown_space_far_round_is_refused():
     """Known free space cut by a new obstacle (a shut door) across the corridor: a way round
     through cells no location saw, three times the straight way, is no transition the map knows;
