@@ -51,7 +51,7 @@ from navtopo.local_grid import FREE, OCCUPIED, GridConfig, grid_from_points, obs
 from navtopo.mapping import GraphMaintainer
 from navtopo.obstacles import ObstacleMemory
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
-from navtopo.scan_matching import prepare
+from navtopo.scan_matching import PreparedGrid, prepare
 from navtopo.types import Command, NavStatus, Observation, Status
 
 
@@ -180,6 +180,7 @@ class Startup:
         self._odometer = 0.0
         self._last_odom: NDArray[np.float64] | None = None
         self._checked_at = -np.inf  # the odometer at the last look that verified every location
+        self._perceived: tuple[float, PreparedGrid, NDArray[np.float32]] | None = None  # (stamp, query, descriptor)
         self.seen = 0
         self.checks = 0
 
@@ -244,12 +245,15 @@ class Startup:
         """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
         matching; how many were added."""
         m = self.maintainer
-        query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
+        if self._perceived is None or self._perceived[0] != obs.stamp:  # once a look, though asked twice
+            query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
+            self._perceived = (obs.stamp, query, self.describe(obs.points))
+        _, query, descriptor = self._perceived
         if check_all:
             self._checked_at = self._odometer
             self.checks += 1
         top_k = len(m.graph) if check_all else self.config.top_k
-        found = m.localizer.localize(query, self.describe(obs.points), top_k=top_k)
+        found = m.localizer.localize(query, descriptor, top_k=top_k)
         added = 0
         for located in found:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):

@@ -15,8 +15,8 @@ ROOT = Path(__file__).resolve().parent.parent
 pytestmark = pytest.mark.slow
 
 
-def _run(scenario: str, setting: str, out: Path) -> dict:
-    command = [sys.executable, "-m", "runners.cli", "run", scenario, "--systems", "navtopo,metric_grid,oracle"]
+def _run(scenario: str, setting: str, out: Path, systems: str = "navtopo,metric_grid,oracle", *extra: str) -> dict:
+    command = [sys.executable, "-m", "runners.cli", "run", scenario, "--systems", systems, *extra]
     command += ["--setting", setting, "--workers", "2", "--out", str(out)]
     result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=3 * 3600)
     assert result.returncode == 0, result.stderr[-2000:]
@@ -37,9 +37,7 @@ def _two_laps(tmp_path: Path) -> Path:
 @pytest.mark.parametrize("setting", ["precise", "noisy"])
 def test_navtopo_maps_a_building_with_loops_without_mapping_places_twice(setting, tmp_path):
     out = tmp_path / "run"
-    command = [sys.executable, "-m", "runners.cli", "run", str(_two_laps(tmp_path)), "--systems", "navtopo", "--trials", "0"]
-    result = subprocess.run(command + ["--setting", setting, "--out", str(out)], cwd=ROOT, capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr[-2000:]
+    _run(str(_two_laps(tmp_path)), setting, out, "navtopo", "--trials", "0")
     mapping = json.loads((out / "mapping" / "navtopo.json").read_text())
     assert mapping["edge_error"]["translation_m"]["max"] <= 0.3
     assert mapping["edge_error"]["rotation_deg"]["max"] <= 3.0

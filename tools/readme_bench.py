@@ -30,11 +30,12 @@ def section(run: Path, table: str) -> str:
     manifest = json.loads((run / "manifest.json").read_text(encoding="utf-8"))
     revision = str(manifest.get("git_revision") or "unknown")[:12]
     created = manifest.get("created", "unknown date")
+    cores = (manifest.get("machine") or {}).get("cpus", "?")
     scenario = manifest.get("scenario")
     scenario = scenario.get("name") if isinstance(scenario, dict) else scenario or run.parent.name
     lines = [
         START,
-        f"From `make bench` ({scenario}, revision `{revision}`, {created}; 2 cores), written by",
+        f"From `make bench` ({scenario}, revision `{revision}`, {created}; {cores} cores), written by",
         f"`.venv/bin/python tools/readme_bench.py {run.relative_to(ROOT) if run.is_relative_to(ROOT) else run}`:",
         "",
         table.strip(),
