@@ -1,5 +1,7 @@
 """Where NavTopo's locations lie in the map frame, against the truth: the odometry hints, and the
-relaxation of the graph (``navtopo.graph_poses``) that map-frame goals are converted with.
+relaxation of the graph (``navtopo.graph_poses``) that map-frame goals are converted with, over the
+hints it chose (``hint_chain``); where those are the lidar hints, also the lidar hints alone and the
+relaxation over the odometry hints alone.
 
 The runner records the true pose where each location was made (``mapping/navtopo.json``,
 ``anchors``, scenario frame); the map frame is the mapping run's first pose. A benchmark may read
@@ -19,7 +21,7 @@ import numpy as np
 
 from navtopo import geometry as se2
 from navtopo.graph import TopologicalGraph
-from navtopo.graph_poses import relaxed_poses
+from navtopo.graph_poses import hint_chain, relaxed_poses
 
 
 def errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
@@ -48,6 +50,13 @@ def main() -> None:
         t0 = time.perf_counter()
         relaxed = relaxed_poses(graph)
         elapsed = (time.perf_counter() - t0) * 1e3
+        chain, _ = hint_chain(graph)
+        compared = {}
+        if chain == "lidar":  # the same relaxation on the odometry hints alone, for comparison
+            compared["lidar_hints"] = errors(np.array([v.lidar_hint for v in graph.vertices]), truth)
+            for vertex in graph.vertices:
+                vertex.lidar_hint = None
+            compared["relaxed_without_lidar"] = errors(relaxed_poses(graph), truth)
         print(
             json.dumps(
                 {
@@ -56,6 +65,8 @@ def main() -> None:
                     "vertices": len(graph),
                     "edges": graph.edge_count,
                     "hints": errors(hints, truth),
+                    "hint_chain": chain,
+                    **compared,
                     "relaxed": errors(relaxed, truth),
                     "relaxation_ms": round(elapsed, 2),
                 },

@@ -41,6 +41,8 @@ class Vertex:
     pose_hint: NDArray[np.float64]  # (3,) odometry pose at creation, odometry frame
     stamp: float
     odometer: float | None = None  # metres of odometry travelled before it was made (None: not recorded)
+    # (3,) lidar-odometry pose at creation, odometry frame (None: not recorded; navtopo.graph_poses)
+    lidar_hint: NDArray[np.float64] | None = None
 
 
 class TopologicalGraph:
@@ -164,11 +166,15 @@ class TopologicalGraph:
 
     @property
     def nbytes(self) -> int:
-        """Exact bytes of the map's data: grids, descriptors, pose hints, stamps, odometers, edges."""
+        """Exact bytes of the map's data: grids, descriptors, pose hints (odometry and lidar), stamps,
+        odometers, edges."""
         n = len(self.vertices)
         grids = sum(v.grid.nbytes for v in self.vertices)
         odometers = 8 * sum(1 for v in self.vertices if v.odometer is not None)
-        return int(grids + self.descriptors.nbytes + n * 3 * 8 + n * 8 + odometers + 2 * self.edge_count * EDGE_BYTES)
+        lidar_hints = 3 * 8 * sum(1 for v in self.vertices if v.lidar_hint is not None)
+        return int(
+            grids + self.descriptors.nbytes + n * 3 * 8 + n * 8 + odometers + lidar_hints + 2 * self.edge_count * EDGE_BYTES
+        )
 
     # -- files -----------------------------------------------------------------------------------
 
@@ -190,6 +196,7 @@ class TopologicalGraph:
                     "stamp": v.stamp,
                     "pose_hint": [float(x) for x in v.pose_hint],
                     **({"odometer": v.odometer} if v.odometer is not None else {}),
+                    **({"lidar_hint": [float(x) for x in v.lidar_hint]} if v.lidar_hint is not None else {}),
                     "grid": {
                         "file": f"grids/{i:06d}.png",
                         "row0": v.grid.row0,
@@ -261,6 +268,14 @@ class TopologicalGraph:
                     float(entry["stamp"]),
                     None if odometer is None else float(odometer),
                 )
+                if entry.get("lidar_hint") is not None:
+                    try:
+                        lidar_hint = np.asarray(entry["lidar_hint"], float)
+                    except (TypeError, ValueError):
+                        lidar_hint = np.zeros(0)
+                    if lidar_hint.shape != (3,) or not np.isfinite(lidar_hint).all():
+                        raise ValueError(f"lidar_hint: expected 3 finite numbers, got {entry['lidar_hint']!r}")
+                    graph.vertices[-1].lidar_hint = lidar_hint
             except GraphFormatError:
                 raise
             except (KeyError, TypeError, ValueError) as exc:

@@ -11,6 +11,15 @@ odometry travelled in between — estimated from the data, as the spread of the 
 with the scan-matched edges, so no setting has to be named. The first location, made at the
 mapping run's first pose, anchors the map frame. Navigation itself never uses these poses: it
 lives in the locations' own frames.
+
+The edges do not drift, but each is off by ~0.25° (rms, precise or noisy odometry alike: matching
+two single-scan grids of 0.1 m cells, whose optimum itself sits that far from the truth), and on a
+tree of locations nothing closes: chained over twenty edges to a far branch that is a degree,
+1-1.5 m at 80 m. A graph made with ``NavTopoConfig.lidar_hints`` also keeps, per location, the
+pose of a lidar odometry (KISS-ICP, ``navtopo.odometry``) run alongside the mapping: scan-to-map
+registration of every scan drifts far less than either (0.09-0.25 m at the farthest location of
+generated 150 m trees, where the relaxation over odometry hints was 0.41-0.90 m off). The
+relaxation takes the lidar hints where the odometry is the odd one out (``hint_chain``).
 """
 
 from __future__ import annotations
@@ -62,28 +71,72 @@ def _residuals(poses: NDArray, u: NDArray, v: NDArray, measured: NDArray) -> tup
     return residual, a, b
 
 
-def _hint_noise(graph: TopologicalGraph, travel: NDArray) -> tuple[float, float]:
-    """Per-√metre noise of the hints, from how far they disagree with the scan-matched edges (over
-    the odometry travelled between the two locations' making), less what the edges' own error explains."""
+def _disagreement(graph: TopologicalGraph, hints: NDArray, travel: NDArray) -> tuple[float, float, float]:
+    """How far the hints' relative poses disagree with the scan-matched edges: the medians of the
+    squared position (m²) and heading (rad²) differences, and the median odometry travelled between
+    the two ends' making (m); (0, 0, 1) without an edge."""
     xy, yaw, metres = [], [], []
     for u, v, pose_uv in graph.edges():
-        hinted = between(graph.vertices[u].pose_hint, graph.vertices[v].pose_hint)
-        error = between(pose_uv, hinted)
+        error = between(pose_uv, between(hints[u], hints[v]))
         xy.append(float(np.hypot(error[0], error[1])) ** 2)
         yaw.append(float(wrap_angle(error[2])) ** 2)
         metres.append(max(abs(float(travel[v] - travel[u])), 0.5))
     if not xy:
+        return 0.0, 0.0, 1.0
+    return float(np.median(xy)), float(np.median(yaw)), float(np.median(metres))
+
+
+def _hint_noise(graph: TopologicalGraph, travel: NDArray, hints: NDArray | None = None) -> tuple[float, float]:
+    """Per-√metre noise of the hints (default: the odometry hints), from how far they disagree with
+    the scan-matched edges (over the odometry travelled between the two locations' making), less
+    what the edges' own error explains."""
+    if hints is None:
+        hints = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64)
+    if not graph.edge_count:
         return 0.0, 0.0  # no edge: the hints alone place the locations
-    per_metre = float(np.median(metres))
+    xy, yaw, per_metre = _disagreement(graph, hints, travel)
     # what the edges' own errors explain is counted twice over: edges a little worse than their
     # assumed sigma made exact hints look noisy (loop_office_door, precise: k_yaw 0.04 deg/sqrt(m),
     # relaxed poses 0.19 m median off the exact hints, goals converted 0.4 m off); on generated
     # noisy drives the map poses moved by 1-10 % (BENCHMARKS.md, session 7)
     # medians, robust to the odd wrong edge, turned into variances: the median of a squared normal
     # is 0.455 sigma^2 (chi-square, 1 degree of freedom), of a squared 2D distance 1.386 sigma^2 a side
-    k_xy = np.sqrt(max(float(np.median(xy)) / CHI2_MEDIAN_2 - EXPLAINED * EDGE_SIGMA_XY**2, 0.0) / per_metre)
-    k_yaw = np.sqrt(max(float(np.median(yaw)) / CHI2_MEDIAN_1 - EXPLAINED * EDGE_SIGMA_YAW**2, 0.0) / per_metre)
+    k_xy = np.sqrt(max(xy / CHI2_MEDIAN_2 - EXPLAINED * EDGE_SIGMA_XY**2, 0.0) / per_metre)
+    k_yaw = np.sqrt(max(yaw / CHI2_MEDIAN_1 - EXPLAINED * EDGE_SIGMA_YAW**2, 0.0) / per_metre)
     return float(k_xy), float(k_yaw)
+
+
+def hint_chain(graph: TopologicalGraph) -> tuple[str, NDArray[np.float64]]:
+    """The hints the relaxation uses: ``("odometry", ...)`` the odometry poses where the locations
+    were made, or ``("lidar", ...)`` the lidar-odometry poses (when every location has one).
+
+    Over each edge, three estimates of the turn between its ends: the edge's, the odometry's and the
+    lidar's. The lidar hints are taken when the odometry disagrees with them more than they disagree
+    with the edges (median squared heading differences): then the odometry is the odd one out. With
+    exact odometry the two hints agree within a few hundredths of a degree an edge, far below the
+    edges' own ~0.25°, and the odometry is kept (choosing by agreement with the edges alone picked
+    the lidar on one of four generated precise drives: 0.21 m off instead of exact); with odometry
+    drifting 0.5°/√m it disagrees ~1° an edge and the lidar is taken (BENCHMARKS.md, "Lidar hints").
+    """
+    odometry = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64).reshape(-1, 3)
+    if not graph.vertices or any(v.lidar_hint is None for v in graph.vertices) or not graph.edge_count:
+        return "odometry", odometry
+    lidar = np.array([v.lidar_hint for v in graph.vertices], dtype=np.float64)
+    with_edges, between_hints = [], []
+    for u, v, pose_uv in graph.edges():
+        lidar_uv = between(lidar[u], lidar[v])
+        with_edges.append(float(wrap_angle(lidar_uv[2] - pose_uv[2])) ** 2)
+        between_hints.append(float(wrap_angle(between(odometry[u], odometry[v])[2] - lidar_uv[2])) ** 2)
+    return ("lidar", lidar) if np.median(between_hints) > np.median(with_edges) else ("odometry", odometry)
+
+
+def _travel(graph: TopologicalGraph, hints: NDArray) -> NDArray[np.float64]:
+    """Metres of odometry travelled before each location was made (an older graph without them: the
+    hints' spacing stands in)."""
+    travel = np.array([v.odometer if v.odometer is not None else np.nan for v in graph.vertices], dtype=np.float64)
+    if np.isnan(travel).any():
+        travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(hints[:, :2], axis=0).T))])
+    return travel
 
 
 def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.float64]:
@@ -91,11 +144,9 @@ def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.f
     n = len(graph)
     if n == 0:
         return np.zeros((0, 3))
-    hints = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64)
-    travel = np.array([v.odometer if v.odometer is not None else np.nan for v in graph.vertices])
-    if np.isnan(travel).any():  # an older graph: the hints' spacing stands in for the odometry travelled
-        travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(hints[:, :2], axis=0).T))])
-    k_xy, k_yaw = _hint_noise(graph, travel)
+    travel = _travel(graph, np.array([v.pose_hint for v in graph.vertices], dtype=np.float64))
+    _, hints = hint_chain(graph)
+    k_xy, k_yaw = _hint_noise(graph, travel, hints)
     edges = graph.edges()
     chain = np.arange(1, n)
     metres = np.maximum(np.abs(travel[chain] - travel[chain - 1]), 0.1)

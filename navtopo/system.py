@@ -26,11 +26,12 @@ from pydantic import BaseModel, ConfigDict, field_validator
 
 from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.graph import TopologicalGraph
-from navtopo.graph_poses import relaxed_poses
+from navtopo.graph_poses import hint_chain, relaxed_poses
 from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
 from navtopo.navigation import NavigationConfig, Navigator, Startup, StartupConfig
+from navtopo.odometry import LidarOdometry, OdometryConfig
 from navtopo.place_recognition import available_descriptors, default_weights_path, make_descriptor
 from navtopo.planning import GlobalPlanner, LocalPlanner, PlanningConfig, UnionGrids
 from navtopo.scan_matching import MatchingConfig
@@ -51,6 +52,11 @@ class NavTopoConfig(BaseModel):
     startup: StartupConfig = StartupConfig()
     navigation: NavigationConfig = NavigationConfig()
     follower: FollowerConfig = FollowerConfig()
+    # while mapping, a lidar odometry (KISS-ICP on the same scans, seeded by the odometry) runs
+    # alongside and each location keeps its pose there too: used only to place the locations in the
+    # map frame for map-frame goals (navtopo.graph_poses), never to navigate. ~10 ms a scan.
+    lidar_hints: bool = True
+    lidar_odometry: OdometryConfig = OdometryConfig(source="lidar")
 
     @field_validator("descriptor")
     @classmethod
@@ -98,6 +104,7 @@ class NavTopo:
         )
         self.navigator.reset()
         self.update_ms: list[float] = []
+        self._lidar: LidarOdometry | None = None  # while mapping with lidar_hints
 
     @staticmethod
     def warm_up() -> None:
@@ -125,7 +132,14 @@ class NavTopo:
         return cls(config, context=context)
 
     def observe(self, obs: Observation) -> None:
+        made = len(self.graph)
         self.maintainer.update(obs.points, obs.odom, obs.stamp)
+        if self.config.lidar_hints:
+            if self._lidar is None:
+                self._lidar = LidarOdometry(self.config.lidar_odometry)
+            pose = self._lidar.update(obs.points, obs.odom)
+            for vertex in self.graph.vertices[made:]:  # made from this scan
+                vertex.lidar_hint = pose.copy()
 
     def finish_mapping(self) -> None:
         pass
@@ -157,6 +171,7 @@ class NavTopo:
             "counters": {k: v for k, v in vars(counters).items() if k != "reasons"},
             "vertex_stamps": stamps,
             "edges_stamped": [(stamps[u], stamps[v], [float(x) for x in pose]) for u, v, pose in self.graph.edges()],
+            "map_frame_hints": hint_chain(self.graph)[0],
         }
 
     # -- navigation --------------------------------------------------------------------------------

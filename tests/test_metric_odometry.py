@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from test_metric_synthetic import corridor_world, scan
 
-from baselines.metric_grid.odometry import (
+from navtopo import geometry as se2
+from navtopo.odometry import (
     LidarOdometry,
     OdometryConfig,
     se2_to_se3,
     se3_to_se2,
 )
-from navtopo import geometry as se2
 
 
 @pytest.fixture(scope="module")

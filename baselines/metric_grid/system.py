@@ -3,7 +3,7 @@
 The pipeline the paper compares NavTopo with (RTAB-MAP + Theta*), from well-kept parts. It
 composes the parts of this package and owns no algorithm but the small navigation loop:
 
-mapping      odometry (``odometry.LidarOdometry``: wheel, or kiss-icp seeded by the wheels) ->
+mapping      odometry (``navtopo.odometry.LidarOdometry``: wheel, or kiss-icp seeded by the wheels) ->
              keyframes and verified loop closures (``pose_graph.PoseGraph``, gtsam) -> at the end,
              batch optimisation and the global 0.1 m log-odds grid traced from every keyframe at
              its optimised pose (``occupancy.OccupancyGrid``); saved as a ROS map_server map
@@ -44,11 +44,11 @@ from navtopo.follower import FollowerConfig, PathFollower
 from navtopo.grid_planning import GridFrame, plan_path
 from navtopo.local_grid import FREE, OCCUPIED, GridConfig, obstacle_points
 from navtopo.obstacles import ObstacleMemory
+from navtopo.odometry import LidarOdometry, OdometryConfig
 from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 
 from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMapConfig
 from .occupancy import GridMap, OccupancyConfig, OccupancyGrid
-from .odometry import LidarOdometry, OdometryConfig
 from .pose_graph import PoseGraph, PoseGraphConfig
 from .scan2d import keyframe_scan, voxel_filter_2d
 

@@ -1,4 +1,6 @@
-"""Lidar odometry of the metric baseline: KISS-ICP on cropped scans, reported in SE(2).
+"""Lidar odometry: KISS-ICP on cropped scans, reported in SE(2). The metric baseline's odometry
+(``baselines.metric_grid``), and the lidar hints NavTopo keeps of where it made its locations
+(``navtopo.graph_poses``: map-frame goals).
 
 KISS-ICP (Vizzo et al., "KISS-ICP: In Defense of Point-to-Point ICP", RA-L 2023) registers each
 scan to a local voxel map with point-to-point ICP, a robust kernel and an adaptive threshold.
@@ -41,7 +43,7 @@ from navtopo import geometry as se2
 
 
 class OdometryConfig(BaseModel):
-    """Odometry of the metric baseline. Defaults suit the simulated 16-beam, 15 m lidar."""
+    """Lidar (or wheel) odometry. Defaults suit the simulated 16-beam, 15 m lidar."""
 
     model_config = ConfigDict(extra="forbid")
 
