@@ -31,15 +31,17 @@ wheel-odometry delta instead of kiss-icp's constant-velocity prediction.
 from __future__ import annotations
 
 from collections import deque
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
-from kiss_icp.config import KISSConfig
-from kiss_icp.kiss_icp import KissICP
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navtopo import geometry as se2
+
+if TYPE_CHECKING:  # kiss-icp is imported when an odometry is made: NavTopo navigates without it
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
 
 
 class OdometryConfig(BaseModel):
@@ -75,6 +77,8 @@ class OdometryConfig(BaseModel):
     max_num_threads: int = Field(1, description="kiss-icp threads; 0 = all cores")
 
     def kiss_config(self) -> KISSConfig:
+        from kiss_icp.config import KISSConfig
+
         config = KISSConfig()
         config.data.max_range = self.max_range
         config.data.min_range = self.min_range
@@ -120,6 +124,8 @@ class LidarOdometry:
         self.config = config or OdometryConfig()
         self._kiss: KissICP | None = None
         if self.config.source == "lidar":
+            from kiss_icp.kiss_icp import KissICP
+
             self._kiss = KissICP(self.config.kiss_config())
         self._anchor: NDArray[np.float64] | None = None  # first wheel pose
         self._last_wheel: NDArray[np.float64] | None = None
