@@ -18,7 +18,7 @@ tree of locations nothing closes: chained over twenty edges to a far branch that
 1-1.5 m at 80 m. A graph made with ``NavTopoConfig.lidar_hints`` also keeps, per location, the
 pose of a lidar odometry (KISS-ICP, ``navtopo.odometry``) run alongside the mapping: scan-to-map
 registration of every scan drifts far less than either (0.09-0.25 m at the farthest location of
-generated 150 m trees, where the relaxation over odometry hints was 0.41-0.90 m off). The
+generated 150 m trees, where the relaxation over odometry hints was 0.22-0.90 m off). The
 relaxation takes the lidar hints where the odometry is the odd one out (``hint_chain``).
 """
 
@@ -71,10 +71,12 @@ def _residuals(poses: NDArray, u: NDArray, v: NDArray, measured: NDArray) -> tup
     return residual, a, b
 
 
-def _disagreement(graph: TopologicalGraph, hints: NDArray, travel: NDArray) -> tuple[float, float, float]:
-    """How far the hints' relative poses disagree with the scan-matched edges: the medians of the
-    squared position (m²) and heading (rad²) differences, and the median odometry travelled between
-    the two ends' making (m); (0, 0, 1) without an edge."""
+def _hint_noise(graph: TopologicalGraph, travel: NDArray, hints: NDArray | None = None) -> tuple[float, float]:
+    """Per-√metre noise of the hints (default: the odometry hints), from how far they disagree with
+    the scan-matched edges (over the odometry travelled between the two locations' making), less
+    what the edges' own error explains."""
+    if hints is None:
+        hints = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64)
     xy, yaw, metres = [], [], []
     for u, v, pose_uv in graph.edges():
         error = between(pose_uv, between(hints[u], hints[v]))
@@ -82,27 +84,16 @@ def _disagreement(graph: TopologicalGraph, hints: NDArray, travel: NDArray) -> t
         yaw.append(float(wrap_angle(error[2])) ** 2)
         metres.append(max(abs(float(travel[v] - travel[u])), 0.5))
     if not xy:
-        return 0.0, 0.0, 1.0
-    return float(np.median(xy)), float(np.median(yaw)), float(np.median(metres))
-
-
-def _hint_noise(graph: TopologicalGraph, travel: NDArray, hints: NDArray | None = None) -> tuple[float, float]:
-    """Per-√metre noise of the hints (default: the odometry hints), from how far they disagree with
-    the scan-matched edges (over the odometry travelled between the two locations' making), less
-    what the edges' own error explains."""
-    if hints is None:
-        hints = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64)
-    if not graph.edge_count:
         return 0.0, 0.0  # no edge: the hints alone place the locations
-    xy, yaw, per_metre = _disagreement(graph, hints, travel)
+    per_metre = float(np.median(metres))
     # what the edges' own errors explain is counted twice over: edges a little worse than their
     # assumed sigma made exact hints look noisy (loop_office_door, precise: k_yaw 0.04 deg/sqrt(m),
     # relaxed poses 0.19 m median off the exact hints, goals converted 0.4 m off); on generated
     # noisy drives the map poses moved by 1-10 % (BENCHMARKS.md, session 7)
     # medians, robust to the odd wrong edge, turned into variances: the median of a squared normal
     # is 0.455 sigma^2 (chi-square, 1 degree of freedom), of a squared 2D distance 1.386 sigma^2 a side
-    k_xy = np.sqrt(max(xy / CHI2_MEDIAN_2 - EXPLAINED * EDGE_SIGMA_XY**2, 0.0) / per_metre)
-    k_yaw = np.sqrt(max(yaw / CHI2_MEDIAN_1 - EXPLAINED * EDGE_SIGMA_YAW**2, 0.0) / per_metre)
+    k_xy = np.sqrt(max(float(np.median(xy)) / CHI2_MEDIAN_2 - EXPLAINED * EDGE_SIGMA_XY**2, 0.0) / per_metre)
+    k_yaw = np.sqrt(max(float(np.median(yaw)) / CHI2_MEDIAN_1 - EXPLAINED * EDGE_SIGMA_YAW**2, 0.0) / per_metre)
     return float(k_xy), float(k_yaw)
 
 
