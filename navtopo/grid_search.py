@@ -75,11 +75,23 @@ def inflate_free(free: ArrayLike, radius_m: float, resolution: float) -> NDArray
         raise ValueError(f"free must be a 2-D bool array, got shape {free.shape}")
     if radius_m <= 0.0:
         return free.copy()
+    return clear_of(clearance_squared(free), radius_m, resolution)
+
+
+def clearance_squared(free: ArrayLike) -> NDArray[np.float64]:
+    """(H, W) squared distance, in cells, from each cell's centre to the nearest non-free cell's
+    centre (outside the array counts as non-free); 0 on non-free cells. An exact Euclidean
+    transform gives square roots of integers: their squares are recovered exactly, so a cell at
+    exactly a radius cannot flip with float32 rounding. ``clear_of`` thresholds it for a radius:
+    one transform serves every radius."""
+    free = np.asarray(free, dtype=bool)
     padded = np.pad(free, 1, mode="constant", constant_values=False).view(np.uint8)
     distance = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    # Exact distances are square roots of integers: compare the recovered integer squares, so
-    # float32 rounding cannot flip a cell at exactly the radius.
-    squared = np.rint(np.square(distance, dtype=np.float64))
+    return np.rint(np.square(distance, dtype=np.float64))
+
+
+def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np.bool_]:
+    """The cells of ``clearance_squared`` at least ``radius_m`` from every non-free cell."""
     radius_cells = radius_m / resolution
     return squared >= radius_cells * radius_cells - 1e-6
 

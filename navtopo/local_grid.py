@@ -329,6 +329,48 @@ def warp(
     return np.asarray(warped, dtype=np.uint8)
 
 
+def warp_window(cropped: CroppedGrid, pose: ArrayLike, resolution: float, size: int, window: tuple[int, int, int, int]) -> Grid:
+    """``warp(cropped.to_grid(), pose, size=size)[r0:r1, c0:c1]`` for ``window = (r0, r1, c0, c1)``,
+    without making either full grid: the warp reads the cropped cells through a shifted affine map."""
+    r0, r1, c0, c1 = window
+    matrix = _warp_matrix(pose, cropped.size, size, resolution)
+    # output pixel (x, y) of the window is (x + c0, y + r0) of the whole output; the input's pixel
+    # (x, y) is (x - col0, y - row0) of the cropped cells
+    matrix[:, 2] += matrix[:, :2] @ np.array([c0, r0], dtype=np.float64) - np.array([cropped.col0, cropped.row0])
+    if cropped.cells.size == 0:
+        return np.full((r1 - r0, c1 - c0), UNKNOWN, dtype=np.uint8)
+    warped = cv2.warpAffine(
+        cropped.cells,
+        matrix,
+        (c1 - c0, r1 - r0),
+        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=UNKNOWN,
+    )
+    return np.asarray(warped, dtype=np.uint8).reshape(r1 - r0, c1 - c0)
+
+
+def warped_bounds(
+    cropped: CroppedGrid, pose: ArrayLike, resolution: float, size: int, margin: int = 1
+) -> tuple[int, int, int, int]:
+    """``(r0, r1, c0, c1)``: the part of ``warp(cropped.to_grid(), pose, size=size)`` that can hold
+    the cropped cells' values (their corners mapped into the output, ``margin`` cells wider, clipped
+    to the output); an empty box when there are none."""
+    height, width = cropped.cells.shape
+    if height == 0 or width == 0:
+        return 0, 0, 0, 0
+    matrix = _warp_matrix(pose, cropped.size, size, resolution)  # output pixel -> input pixel
+    forward = np.linalg.inv(np.vstack([matrix, [0.0, 0.0, 1.0]]))[:2]
+    xs = np.array([cropped.col0 - 1, cropped.col0 + width, cropped.col0 - 1, cropped.col0 + width], dtype=np.float64)
+    ys = np.array([cropped.row0 - 1, cropped.row0 - 1, cropped.row0 + height, cropped.row0 + height], dtype=np.float64)
+    out = forward @ np.vstack([xs, ys, np.ones(4)])
+    c0 = int(np.clip(np.floor(out[0].min()) - margin, 0, size))
+    c1 = int(np.clip(np.ceil(out[0].max()) + 1 + margin, 0, size))
+    r0 = int(np.clip(np.floor(out[1].min()) - margin, 0, size))
+    r1 = int(np.clip(np.ceil(out[1].max()) + 1 + margin, 0, size))
+    return r0, max(r1, r0), c0, max(c1, c0)
+
+
 def known_iou(grid_a: Grid, grid_b: Grid) -> float:
     """Intersection over union of the known (free or occupied) cells of two grids in one frame."""
     known_a = grid_a != UNKNOWN

@@ -28,6 +28,8 @@ from navtopo.local_grid import (
     obstacle_points,
     overlap,
     warp,
+    warp_window,
+    warped_bounds,
     xy_to_cell,
 )
 
@@ -283,6 +285,36 @@ def test_warp_moves_a_cell_to_where_the_other_frame_sees_it():
     grid[100, 200] = OCCUPIED
     shifted = warp(grid, np.array([1.0, -0.5, 0.0]), config)
     assert np.argwhere(shifted == OCCUPIED).tolist() == [[105, 190]]
+
+
+def test_a_window_of_a_warp_is_that_part_of_the_whole_warp(room_grid):
+    """warp_window reads the cropped cells straight into a window of the output: the same cells as
+    warping the whole grid and cutting the window out (but for a rare nearest-neighbour tie that
+    the shifted fixed-point map rounds the other way), and warped_bounds holds every known one."""
+    config, _, grid = room_grid
+    cropped = CroppedGrid.from_grid(grid)
+    rng = np.random.default_rng(5)
+    size = 500  # a union grid's canvas
+    for _ in range(30):
+        pose = np.array([rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(-np.pi, np.pi)])
+        whole = warp(grid, pose, config, size=size)
+        r0, r1, c0, c1 = warped_bounds(cropped, pose, config.resolution, size)
+        known = np.argwhere(whole != UNKNOWN)
+        assert len(known) > 1000
+        assert known[:, 0].min() >= r0 and known[:, 0].max() < r1 and known[:, 1].min() >= c0 and known[:, 1].max() < c1
+        window = warp_window(cropped, pose, config.resolution, size, (r0, r1, c0, c1))
+        assert np.count_nonzero(window != whole[r0:r1, c0:c1]) <= 3
+        # any window, even one reaching past the known cells
+        part = (r0 + 7, r1 - 11, c0 - 5 if c0 >= 5 else c0, c1)
+        assert (
+            np.count_nonzero(
+                warp_window(cropped, pose, config.resolution, size, part) != whole[part[0] : part[1], part[2] : part[3]]
+            )
+            <= 3
+        )
+    empty = CroppedGrid.from_grid(np.zeros_like(grid))
+    assert warped_bounds(empty, np.zeros(3), config.resolution, size) == (0, 0, 0, 0)
+    assert (warp_window(empty, np.zeros(3), config.resolution, size, (0, 4, 0, 6)) == UNKNOWN).all()
 
 
 def test_grids_of_two_poses_line_up_with_the_between_pose():

@@ -90,6 +90,28 @@ def test_the_union_grid_of_two_locations_lines_up_with_ground_truth(tiny):
     assert np.mean(near <= 0.11) >= 0.85  # the rest within a cell, but for what one of them sees past (low furniture)
 
 
+def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_space():
+    """One clearance transform a kind serves every radius: each mask is ``inflate_free`` of that
+    kind's free cells, and ``fits`` at a point (from the cells round it) is the mask there."""
+    from navtopo.grid_planning import GridFrame
+    from navtopo.grid_search import inflate_free
+    from navtopo.planning import UnionGrid
+
+    rng = np.random.default_rng(4)
+    cells = rng.choice([UNKNOWN, FREE, OCCUPIED], size=(60, 80), p=[0.2, 0.75, 0.05]).astype(np.uint8)
+    cells[20:40, 30:50] = FREE  # room for the robot somewhere
+    union = UnionGrid(0, cells, GridFrame(np.array([-4.0, -3.0]), 0.1))
+    for kind, free in (("known", cells == FREE), ("unknown", cells != OCCUPIED)):
+        for radius in (0.05, 0.25, 0.3, 0.45):
+            mask = union.mask(kind, radius)
+            assert np.array_equal(mask, inflate_free(free, radius, 0.1))
+            xy = union.frame.to_world(np.stack([rng.integers(-3, 63, 300), rng.integers(-3, 83, 300)], axis=1))
+            xy += rng.uniform(-0.04, 0.04, xy.shape)
+            expected = union.values_at(xy, mask, True)
+            assert [union.fits(p, kind, radius) for p in xy] == expected.tolist()
+    assert union.mask("known", 0.3).any()
+
+
 def test_a_map_frame_goal_goes_to_the_location_whose_free_area_holds_it():
     # two locations 3 m apart; a wall at x = 1.0 in front of location 0 hides the goal at (1.6, 0)
     grid0 = np.full((GRID.size, GRID.size), FREE, np.uint8)
