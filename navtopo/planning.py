@@ -156,6 +156,9 @@ def path_positions(graph: TopologicalGraph, path: list[int]) -> NDArray[np.float
 # the union grid
 
 
+CLEARANCE_CAP = 255  # squared cells: a union grid's clearance is kept in 8 bits
+
+
 @dataclass
 class UnionGrid:
     """A location's grid united with its neighbours', in the location's frame, cropped to the known
@@ -165,7 +168,8 @@ class UnionGrid:
     vertex: int
     cells: NDArray[np.uint8]  # (H, W) UNKNOWN / FREE / OCCUPIED
     frame: GridFrame
-    _clearance: dict[str, NDArray[np.uint16]] = field(default_factory=dict)
+    _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
+    _masks: dict[tuple[str, float], NDArray[np.bool_]] = field(default_factory=dict)
     _wall_distance: NDArray[np.float32] | None = None
 
     def _free(self, kind: str, cells: NDArray[np.uint8] | None = None) -> NDArray[np.bool_]:
@@ -174,13 +178,21 @@ class UnionGrid:
 
     def mask(self, kind: str, radius: float) -> NDArray[np.bool_]:
         """Cells the robot's centre may take: known free (``known``) or not occupied (``unknown``), eroded
-        by ``radius`` (``grid_search.inflate_free``). One distance transform a kind serves every radius
-        (a plan asks for two or three: 2-3 transforms were most of a first plan's time); it is kept as
-        squared cells in 16 bits, clipped far beyond any robot's radius (25 m at 0.1 m cells)."""
-        if kind not in self._clearance:
-            squared = grid_search.clearance_squared(self._free(kind))
-            self._clearance[kind] = np.minimum(squared, np.iinfo(np.uint16).max).astype(np.uint16)
-        return grid_search.clear_of(self._clearance[kind], radius, self.frame.resolution)
+        by ``radius`` (``grid_search.inflate_free``), kept once made. One distance transform a kind
+        serves every radius (a first plan asks for two: each its own transform was most of its time);
+        it is kept as squared cells in 8 bits, capped at 255 (1.59 m at 0.1 m cells, beyond any
+        planning radius; a larger radius gets a transform of its own)."""
+        key = (kind, radius)
+        if key not in self._masks:
+            radius_cells = radius / self.frame.resolution
+            if radius_cells * radius_cells > CLEARANCE_CAP - 1:
+                self._masks[key] = grid_search.inflate_free(self._free(kind), radius, self.frame.resolution)
+            else:
+                if kind not in self._clearance:
+                    squared = grid_search.clearance_squared(self._free(kind))
+                    self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
+                self._masks[key] = grid_search.clear_of(self._clearance[kind], radius, self.frame.resolution)
+        return self._masks[key]
 
     def fits(self, xy: NDArray, kind: str, radius: float) -> bool:
         """``mask(kind, radius)`` at the point (2,) (True off the grid), from the cells round it
@@ -222,7 +234,8 @@ class UnionGrid:
 
     @property
     def nbytes(self) -> int:
-        total = self.cells.nbytes + sum(c.nbytes for c in self._clearance.values())
+        parts = [*self._clearance.values(), *self._masks.values()]
+        total = self.cells.nbytes + sum(part.nbytes for part in parts)
         return int(total + (self._wall_distance.nbytes if self._wall_distance is not None else 0))
 
 

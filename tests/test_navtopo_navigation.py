@@ -102,7 +102,7 @@ def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_spac
     cells[20:40, 30:50] = FREE  # room for the robot somewhere
     union = UnionGrid(0, cells, GridFrame(np.array([-4.0, -3.0]), 0.1))
     for kind, free in (("known", cells == FREE), ("unknown", cells != OCCUPIED)):
-        for radius in (0.05, 0.25, 0.3, 0.45):
+        for radius in (0.05, 0.25, 0.3, 0.45, 1.7):  # the last one past the 8-bit clearance's cap
             mask = union.mask(kind, radius)
             assert np.array_equal(mask, inflate_free(free, radius, 0.1))
             xy = union.frame.to_world(np.stack([rng.integers(-3, 63, 300), rng.integers(-3, 83, 300)], axis=1))
