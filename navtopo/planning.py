@@ -209,9 +209,8 @@ class UnionGrid:
         free[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0] = self._free(kind, self.cells[rows, cols])
         if not free[reach, reach]:
             return False
-        offsets = np.argwhere(~free) - reach
-        radius_cells = radius / self.frame.resolution
-        return bool((np.square(offsets).sum(axis=1) >= radius_cells * radius_cells - 1e-6).all())
+        squared = np.square(np.argwhere(~free) - reach).sum(axis=1)  # to each non-free cell round it
+        return bool(grid_search.clear_of(squared, radius, self.frame.resolution).all())
 
     @property
     def wall_distance(self) -> NDArray[np.float32]:
