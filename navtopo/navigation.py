@@ -367,6 +367,7 @@ class Navigator:
             0,
         )
         self.maintainer.forget()
+        self.unions.take_build_ms()  # the last trial's
         self.startup.reset()
         self.global_planner.reset()
         self.follower.clear()
@@ -660,7 +661,8 @@ class Navigator:
         return True
 
     def _timed(self, t0: float) -> None:
-        elapsed = (time.perf_counter() - t0) * 1e3
+        # with the union grids built since the last plan (the new-obstacle check asks first)
+        elapsed = (time.perf_counter() - t0) * 1e3 + self.unions.take_build_ms()
         self.planning_ms.append(elapsed)
         if self.first_plan_ms is None and self.localized:
             self.first_plan_ms = elapsed

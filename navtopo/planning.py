@@ -25,6 +25,7 @@ Frames: a union grid is centred on ``v_cur``'s observation point and axis-aligne
 from __future__ import annotations
 
 import heapq
+import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Literal
@@ -269,18 +270,25 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
 
 
 class UnionGrids:
-    """Union grids of the locations visited lately (an LRU cache)."""
+    """Union grids of the locations visited lately (an LRU cache).
+
+    The milliseconds spent building them are kept until ``take_build_ms``: a grid is built for
+    planning even when the new-obstacle check asks for it first (in the same tick, before the plan's
+    clock starts), so the navigator adds them to the next plan's time."""
 
     def __init__(self, graph: TopologicalGraph, grid_config: GridConfig, config: PlanningConfig) -> None:
         self.graph = graph
         self.grid_config = grid_config
         self.config = config
         self._cache: OrderedDict[int, UnionGrid] = OrderedDict()
+        self._build_ms = 0.0
 
     def get(self, vertex: int) -> UnionGrid:
         union = self._cache.get(vertex)
         if union is None:
+            started = time.perf_counter()
             union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius)
+            self._build_ms += (time.perf_counter() - started) * 1e3
             self._cache[vertex] = union
             if len(self._cache) > self.config.union_cache:
                 self._cache.popitem(last=False)
@@ -290,6 +298,11 @@ class UnionGrids:
 
     def cached(self, vertex: int) -> bool:
         return vertex in self._cache
+
+    def take_build_ms(self) -> float:
+        """Milliseconds spent building union grids since the last call."""
+        spent, self._build_ms = self._build_ms, 0.0
+        return spent
 
     def clear(self) -> None:
         self._cache.clear()

@@ -112,6 +112,22 @@ def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_spac
     assert union.mask("known", 0.3).any()
 
 
+def test_the_time_spent_building_union_grids_is_handed_to_the_next_plan(tiny):
+    """A union grid built before the plan's clock starts (by the new-obstacle check) is still
+    counted: its milliseconds wait in the cache until taken, once; a cached grid adds none."""
+    from navtopo.planning import PlanningConfig, UnionGrids
+
+    a, b = np.array([2.0, 0.0, 0.3]), np.array([6.0, -0.2, 2.0])
+    with Simulator(tiny, seed=0) as sim:
+        grids = [_true_grid(sim, a), _true_grid(sim, b)]
+    unions = UnionGrids(_graph([list(a), list(b)], [(0, 1)], grids), GRID, PlanningConfig())
+    assert unions.take_build_ms() == 0.0
+    unions.get(0)
+    assert unions.take_build_ms() > 0.0
+    unions.get(0)
+    assert unions.take_build_ms() == 0.0  # cached: nothing built, nothing to hand on
+
+
 def test_a_map_frame_goal_goes_to_the_location_whose_free_area_holds_it():
     # two locations 3 m apart; a wall at x = 1.0 in front of location 0 hides the goal at (1.6, 0)
     grid0 = np.full((GRID.size, GRID.size), FREE, np.uint8)
