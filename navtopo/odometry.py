@@ -22,6 +22,18 @@ graphs", and measurements on the bundled scenarios):
 * the robust kernel starts at 0.5 m, not 2 m: seeded by wheel odometry, kiss-icp's prediction
   error stays below its ``min_motion_th`` and its adaptive threshold never leaves the start value.
 
+* ``point_to_line`` (NavTopo's lidar hints turn it on): each kiss-icp estimate is refined by 2D
+  point-to-line ICP against the same local map, pulled towards the wheel-seeded prediction only
+  where no wall constrains (``line_prior: seed``), and the bootstrap scans are registered that way
+  too (``line_bootstrap``). Point-to-point ICP against walls sampled along the lidar's fixed
+  azimuth columns is biased even from an exact seed: with exact wheel odometry it put the far
+  locations of generated trees 0.18-0.33 m off, and with noisy odometry the heading the wheels
+  had after the first few (bootstrap) scans, 0.4-0.5° on one tree, stayed in the map for good.
+  Point-to-line does not care where along a wall a return lands, so the first scan's walls fix
+  the heading. On the noisy drives of generated trees 103 and 105 the pose at each place's first
+  visit went from 0.27 / 0.41 m off at most to 0.03 / 0.03 m (BENCHMARKS.md, session 11). Cost:
+  about twice kiss-icp's CPU per scan (13 ms instead of 6.5 on the shared machine).
+
 The robot drives on a plane, so each estimate is projected to SE(2) (x, y, yaw) and, with
 ``planar`` on, fed back as a planar pose before the local map is updated: the unobservable z,
 roll and pitch of a wall-only scan cannot drift. Optionally each registration starts from the
@@ -42,6 +54,7 @@ from navtopo import geometry as se2
 if TYPE_CHECKING:  # kiss-icp is imported when an odometry is made: NavTopo navigates without it
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
+    from scipy.spatial import cKDTree
 
 
 class OdometryConfig(BaseModel):
@@ -75,6 +88,17 @@ class OdometryConfig(BaseModel):
     min_motion_threshold: float = 0.1
     fixed_threshold: float | None = Field(None, description="m; a fixed robust-kernel scale instead of kiss-icp's adaptive one")
     max_num_threads: int = Field(1, description="kiss-icp threads; 0 = all cores")
+    point_to_line: bool = Field(False, description="refine each kiss-icp estimate by 2D point-to-line ICP (see the module doc)")
+    line_sigma: float = Field(0.03, gt=0, description="m; a scan point's distance to its wall line, one sigma")
+    line_distance: float = Field(0.3, gt=0, description="m; point-to-line correspondences farther than this are dropped")
+    line_neighbours: float = Field(0.3, gt=0, description="m; radius of the neighbours a scan point's line is fitted to")
+    line_iterations: int = Field(6, ge=1, description="Gauss-Newton steps of the point-to-line refinement")
+    line_prior_xy: float = Field(0.05, gt=0, description="m; pull towards kiss-icp's estimate where walls do not constrain")
+    line_prior_yaw_deg: float = Field(0.5, gt=0, description="deg; the same for the heading")
+    line_bootstrap: bool = Field(False, description="register the bootstrap scans by point-to-line alone")
+    line_prior: Literal["kiss", "seed"] = Field(
+        "kiss", description="centre of that pull: kiss-icp's estimate, or the (wheel-seeded) prediction it started from"
+    )
 
     def kiss_config(self) -> KISSConfig:
         from kiss_icp.config import KISSConfig
@@ -110,6 +134,95 @@ def crop_floor_and_ceiling(points: NDArray, min_z: float, max_z: float) -> NDArr
     """(N, 3) robot-frame points -> (M, 3) float64 (as kiss-icp wants) with min_z < z < max_z."""
     keep = (points[:, 2] > min_z) & (points[:, 2] < max_z)
     return np.ascontiguousarray(points[keep], dtype=np.float64)
+
+
+LINE_CELL = 0.05  # m: points closer than this are one point to the line fits
+
+
+def _unique_xy(points: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
+    """(N, 2) points, one kept per ``cell``-metre square (the lidar's channels hit a wall at the
+    same x, y: a line fit needs neighbours along the wall, not above one another)."""
+    cells = np.floor(points / cell).astype(np.int64)
+    keys = (cells[:, 0] << 32) + (cells[:, 1] & 0xFFFFFFFF)
+    _, first = np.unique(keys, return_index=True)
+    return points[np.sort(first)]
+
+
+def _line_normals(points: NDArray[np.float64], tree: cKDTree, at: NDArray[np.int64], radius: float) -> NDArray[np.float64]:
+    """(len(at), 2) unit normals of the line through each ``points[at]`` and its neighbours within
+    ``radius``; NaN where they do not lie on one (a corner, clutter, a lone return)."""
+    distances, index = tree.query(points[at], k=8, distance_upper_bound=radius)
+    valid = np.isfinite(distances)
+    count = valid.sum(axis=1)
+    neighbours = points[np.where(valid, index, 0)]  # (M, k, 2); the invalid ones weigh nothing
+    weights = valid / np.maximum(count, 1)[:, None]
+    mean = (neighbours * weights[:, :, None]).sum(axis=1)
+    centred = (neighbours - mean[:, None, :]) * np.sqrt(weights)[:, :, None]
+    sxx = (centred[:, :, 0] ** 2).sum(axis=1)
+    syy = (centred[:, :, 1] ** 2).sum(axis=1)
+    sxy = (centred[:, :, 0] * centred[:, :, 1]).sum(axis=1)
+    # eigenvalues of [[sxx, sxy], [sxy, syy]]; the line runs along the larger one's eigenvector
+    half_trace, root = (sxx + syy) / 2.0, np.sqrt(((sxx - syy) / 2.0) ** 2 + sxy**2)
+    line = (count >= 4) & (half_trace - root < 0.05 * np.maximum(half_trace + root, 1e-12))
+    direction = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    normals = np.stack([-np.sin(direction), np.cos(direction)], axis=1)
+    normals[~line] = np.nan
+    return normals
+
+
+def point_to_line(
+    source: NDArray[np.float64],
+    map_points: NDArray[np.float64],
+    guess: NDArray[np.float64],
+    config: OdometryConfig,
+    prior: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """The (3,) SE(2) pose that puts the (N, 2) robot-frame ``source`` points on the walls of the
+    (P, 2) ``map_points``, starting from ``guess``: Gauss-Newton on each scan point's distance
+    to the line through its nearest map point and that point's neighbours (point-to-line, Censi,
+    "An ICP variant using a point-to-line metric", ICRA 2008), a Cauchy kernel, and a weak prior
+    on ``prior`` (default: ``guess``) for the directions no wall constrains (along a bare
+    corridor). Unlike point-to-point, where along a wall a scan point lands between two map
+    returns does not matter."""
+    from scipy.spatial import cKDTree
+
+    pose = np.asarray(guess, dtype=np.float64).copy()
+    source, map_points = _unique_xy(source, LINE_CELL), _unique_xy(map_points, LINE_CELL)
+    if len(source) < 10 or len(map_points) < 10:
+        return pose
+    tree = cKDTree(map_points)
+    normals = np.full((len(map_points), 2), np.inf)  # inf: not computed yet, NaN: not on a line
+    centre = pose.copy() if prior is None else np.asarray(prior, dtype=np.float64)
+    information = np.array([config.line_prior_xy, config.line_prior_xy, np.radians(config.line_prior_yaw_deg)]) ** -2.0
+    scale = config.line_distance / 3.0
+    for _ in range(config.line_iterations):
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        moved = source @ np.array([[c, s], [-s, c]]) + pose[:2]
+        distance, nearest = tree.query(moved, distance_upper_bound=config.line_distance)
+        nearest = nearest[np.isfinite(distance)]
+        moved = moved[np.isfinite(distance)]
+        new = np.unique(nearest[np.isinf(normals[nearest, 0])])
+        if len(new):
+            normals[new] = _line_normals(map_points, tree, new, config.line_neighbours)
+        n = normals[nearest]
+        on_line = np.isfinite(n[:, 0])
+        if on_line.sum() < 10:
+            break
+        n, moved, nearest = n[on_line], moved[on_line], nearest[on_line]
+        residual = (n * (moved - map_points[nearest])).sum(axis=1)
+        lever = moved - pose[:2]  # d(R p)/dyaw = J R p, J = [[0, -1], [1, 0]]
+        jacobian = np.column_stack([n, n[:, 1] * lever[:, 0] - n[:, 0] * lever[:, 1]])
+        weight = 1.0 / (1.0 + (residual / scale) ** 2) / config.line_sigma**2
+        hessian = (jacobian * weight[:, None]).T @ jacobian + np.diag(information)
+        difference = pose - centre
+        difference[2] = se2.wrap_angle(difference[2])
+        gradient = (jacobian * (weight * residual)[:, None]).sum(axis=0) + information * difference
+        step = -np.linalg.solve(hessian, gradient)
+        pose += step
+        pose[2] = se2.wrap_angle(pose[2])
+        if abs(step[0]) + abs(step[1]) < 1e-5 and abs(step[2]) < 1e-6:
+            break
+    return pose
 
 
 class LidarOdometry:
@@ -181,9 +294,10 @@ class LidarOdometry:
         source = source[np.linalg.norm(source, axis=1) < self.config.source_range]
         sigma = kiss.adaptive_threshold.get_threshold()
         initial_guess = kiss.last_pose @ kiss.last_delta
-        if self.config.seed_with_wheel and 0 < self._scans_in_map < self.config.bootstrap_scans:
+        bootstrap = self.config.seed_with_wheel and 0 < self._scans_in_map < self.config.bootstrap_scans
+        if bootstrap and not (self.config.point_to_line and self.config.line_bootstrap):
             new_pose = initial_guess  # a map of one or two scans is all sampling pattern
-        else:
+        elif not bootstrap:
             new_pose = kiss.registration.align_points_to_map(
                 points=source,
                 voxel_map=kiss.local_map,
@@ -191,7 +305,13 @@ class LidarOdometry:
                 max_correspondance_distance=3 * sigma,
                 kernel=sigma,
             )
-        if self.config.planar:
+        else:
+            new_pose = initial_guess  # point-to-line alone: the sampling pattern does not pull it
+        if self.config.point_to_line and not kiss.local_map.empty() and (self.config.line_bootstrap or not bootstrap):
+            centre = se3_to_se2(initial_guess) if self.config.line_prior == "seed" or bootstrap else None
+            map_xy = kiss.local_map.point_cloud()[:, :2]
+            new_pose = se2_to_se3(point_to_line(source[:, :2], map_xy, se3_to_se2(new_pose), self.config, centre))
+        elif self.config.planar:
             new_pose = se2_to_se3(se3_to_se2(new_pose))
         kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
         if kiss.local_map.empty():

@@ -56,7 +56,7 @@ class NavTopoConfig(BaseModel):
     # alongside and each location keeps its pose there too: used only to place the locations in the
     # map frame for map-frame goals (navtopo.graph_poses), never to navigate. ~5 ms of CPU a scan.
     lidar_hints: bool = True
-    lidar_odometry: OdometryConfig = OdometryConfig(source="lidar")
+    lidar_odometry: OdometryConfig = OdometryConfig(source="lidar", point_to_line=True, line_prior="seed", line_bootstrap=True)
 
     @field_validator("descriptor")
     @classmethod
