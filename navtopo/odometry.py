@@ -20,9 +20,8 @@ graphs", and measurements on the bundled scenarios):
   exactly (the floor's effect again, from the walls). At the start of a corridor drive it lost
   0.5 m in ten scans, and over 270 m the error was 0.74 m RMS; with the delay, 0.12 m;
 * the robust kernel starts at 0.5 m, not 2 m: seeded by wheel odometry, kiss-icp's prediction
-  error stays below its ``min_motion_th`` and its adaptive threshold never leaves the start value.
-
-* ``point_to_line`` (NavTopo's lidar hints turn it on): each kiss-icp estimate is refined by 2D
+  error stays below its ``min_motion_th`` and its adaptive threshold never leaves the start value;
+* ``point_to_line`` (on by default): each kiss-icp estimate is refined by 2D
   point-to-line ICP against the same local map, pulled towards the wheel-seeded prediction only
   where no wall constrains (``line_prior: seed``), and the bootstrap scans are registered that way
   too (``line_bootstrap``). Point-to-point ICP against walls sampled along the lidar's fixed
@@ -31,8 +30,9 @@ graphs", and measurements on the bundled scenarios):
   had after the first few (bootstrap) scans, 0.4-0.5° on one tree, stayed in the map for good.
   Point-to-line does not care where along a wall a return lands, so the first scan's walls fix
   the heading. On the noisy drives of generated trees 103 and 105 the pose at each place's first
-  visit went from 0.27 / 0.41 m off at most to 0.03 / 0.03 m (BENCHMARKS.md, session 11). Cost:
-  about twice kiss-icp's CPU per scan (13 ms instead of 6.5 on the shared machine).
+  visit went from 0.27 / 0.41 m off at most to 0.03 / 0.03 m, and the metric baseline's map
+  (ATE, trees 101-103) from 0.086 to 0.021 m mean (BENCHMARKS.md, session 11). Cost: about twice
+  kiss-icp's CPU per scan (13 ms instead of 6.5 on the shared machine). Off, kiss-icp alone.
 
 The robot drives on a plane, so each estimate is projected to SE(2) (x, y, yaw) and, with
 ``planar`` on, fed back as a planar pose before the local map is updated: the unobservable z,
@@ -88,16 +88,16 @@ class OdometryConfig(BaseModel):
     min_motion_threshold: float = 0.1
     fixed_threshold: float | None = Field(None, description="m; a fixed robust-kernel scale instead of kiss-icp's adaptive one")
     max_num_threads: int = Field(1, description="kiss-icp threads; 0 = all cores")
-    point_to_line: bool = Field(False, description="refine each kiss-icp estimate by 2D point-to-line ICP (see the module doc)")
+    point_to_line: bool = Field(True, description="refine each kiss-icp estimate by 2D point-to-line ICP (see the module doc)")
     line_sigma: float = Field(0.03, gt=0, description="m; a scan point's distance to its wall line, one sigma")
     line_distance: float = Field(0.3, gt=0, description="m; point-to-line correspondences farther than this are dropped")
     line_neighbours: float = Field(0.3, gt=0, description="m; radius of the neighbours a scan point's line is fitted to")
     line_iterations: int = Field(6, ge=1, description="Gauss-Newton steps of the point-to-line refinement")
-    line_prior_xy: float = Field(0.05, gt=0, description="m; pull towards kiss-icp's estimate where walls do not constrain")
+    line_prior_xy: float = Field(0.05, gt=0, description="m; pull towards the prior (line_prior) where walls do not constrain")
     line_prior_yaw_deg: float = Field(0.5, gt=0, description="deg; the same for the heading")
-    line_bootstrap: bool = Field(False, description="register the bootstrap scans by point-to-line alone")
+    line_bootstrap: bool = Field(True, description="register the bootstrap scans by point-to-line alone")
     line_prior: Literal["kiss", "seed"] = Field(
-        "kiss", description="centre of that pull: kiss-icp's estimate, or the (wheel-seeded) prediction it started from"
+        "seed", description="centre of that pull: kiss-icp's estimate, or the (wheel-seeded) prediction it started from"
     )
 
     def kiss_config(self) -> KISSConfig:
