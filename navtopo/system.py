@@ -54,9 +54,10 @@ class NavTopoConfig(BaseModel):
     follower: FollowerConfig = FollowerConfig()
     # while mapping, a lidar odometry (KISS-ICP on the same scans, seeded by the odometry) runs
     # alongside and each location keeps its pose there too: used only to place the locations in the
-    # map frame for map-frame goals (navtopo.graph_poses), never to navigate. ~5 ms of CPU a scan.
+    # map frame for map-frame goals (navtopo.graph_poses), never to navigate. ~10-13 ms of CPU a scan
+    # (kiss-icp and its point-to-line refinement).
     lidar_hints: bool = True
-    lidar_odometry: OdometryConfig = OdometryConfig(source="lidar", point_to_line=True, line_prior="seed", line_bootstrap=True)
+    lidar_odometry: OdometryConfig = OdometryConfig(source="lidar")
 
     @field_validator("descriptor")
     @classmethod
