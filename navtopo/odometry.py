@@ -23,7 +23,7 @@ graphs", and measurements on the bundled scenarios):
   error stays below its ``min_motion_th`` and its adaptive threshold never leaves the start value;
 * ``point_to_line`` (on by default): each kiss-icp estimate is refined by 2D
   point-to-line ICP against the same local map, pulled towards the wheel-seeded prediction only
-  where no wall constrains (``line_prior: seed``), and the bootstrap scans are registered that way
+  where no wall constrains, and the bootstrap scans are registered that way
   too (``line_bootstrap``). Point-to-point ICP against walls sampled along the lidar's fixed
   azimuth columns is biased even from an exact seed: with exact wheel odometry it put the far
   locations of generated trees 0.18-0.33 m off, and with noisy odometry the heading the wheels
@@ -33,6 +33,9 @@ graphs", and measurements on the bundled scenarios):
   visit went from 0.27 / 0.41 m off at most to 0.03 / 0.03 m, and the metric baseline's map
   (ATE, trees 101-103) from 0.086 to 0.021 m mean (BENCHMARKS.md, session 11). Cost: about twice
   kiss-icp's CPU per scan (13 ms instead of 6.5 on the shared machine). Off, kiss-icp alone.
+  Not a win everywhere: on a generated noisy ring building (seed 101) the positions drift more
+  along the corridors (first visits 0.35 m median off, kiss-icp alone 0.16 m); refining the
+  heading alone lay between the two on both kinds of scene (BENCHMARKS.md, session 11).
 
 The robot drives on a plane, so each estimate is projected to SE(2) (x, y, yaw) and, with
 ``planar`` on, fed back as a planar pose before the local map is updated: the unobservable z,
@@ -91,14 +94,11 @@ class OdometryConfig(BaseModel):
     point_to_line: bool = Field(True, description="refine each kiss-icp estimate by 2D point-to-line ICP (see the module doc)")
     line_sigma: float = Field(0.03, gt=0, description="m; a scan point's distance to its wall line, one sigma")
     line_distance: float = Field(0.3, gt=0, description="m; point-to-line correspondences farther than this are dropped")
-    line_neighbours: float = Field(0.3, gt=0, description="m; radius of the neighbours a scan point's line is fitted to")
+    line_neighbours: float = Field(0.3, gt=0, description="m; radius of the neighbours a map point's line is fitted to")
     line_iterations: int = Field(6, ge=1, description="Gauss-Newton steps of the point-to-line refinement")
-    line_prior_xy: float = Field(0.05, gt=0, description="m; pull towards the prior (line_prior) where walls do not constrain")
+    line_prior_xy: float = Field(0.05, gt=0, description="m; pull to the wheel-seeded prediction where walls do not constrain")
     line_prior_yaw_deg: float = Field(0.5, gt=0, description="deg; the same for the heading")
     line_bootstrap: bool = Field(True, description="register the bootstrap scans by point-to-line alone")
-    line_prior: Literal["kiss", "seed"] = Field(
-        "seed", description="centre of that pull: kiss-icp's estimate, or the (wheel-seeded) prediction it started from"
-    )
 
     def kiss_config(self) -> KISSConfig:
         from kiss_icp.config import KISSConfig
@@ -308,9 +308,9 @@ class LidarOdometry:
         else:
             new_pose = initial_guess  # point-to-line alone: the sampling pattern does not pull it
         if self.config.point_to_line and not kiss.local_map.empty() and (self.config.line_bootstrap or not bootstrap):
-            centre = se3_to_se2(initial_guess) if self.config.line_prior == "seed" or bootstrap else None
             map_xy = kiss.local_map.point_cloud()[:, :2]
-            new_pose = se2_to_se3(point_to_line(source[:, :2], map_xy, se3_to_se2(new_pose), self.config, centre))
+            prediction = se3_to_se2(initial_guess)  # the wheel-seeded one: unbiased where walls say nothing
+            new_pose = se2_to_se3(point_to_line(source[:, :2], map_xy, se3_to_se2(new_pose), self.config, prediction))
         elif self.config.planar:
             new_pose = se2_to_se3(se3_to_se2(new_pose))
         kiss.adaptive_threshold.update_model_deviation(np.linalg.inv(initial_guess) @ new_pose)
