@@ -19,6 +19,7 @@ float32 points, odometry) is stored with the true pose, in an ``.npz`` under a c
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import time
@@ -27,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 
 from navtopo import geometry as se2
@@ -220,3 +222,27 @@ def git_state() -> dict[str, Any]:
 
 def parse_list(text: str, kind: type = str) -> list:
     return [kind(item) for item in text.split(",") if item.strip()]
+
+
+def replay_parser(description: str, kind: str, length: float, seeds: str, settings: str) -> argparse.ArgumentParser:
+    """The arguments every replay over recorded drives takes: the generated scenes, the drives'
+    cache, candidate configs (``NAME=YAML`` overrides, read by ``candidates``) and a JSON copy."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--kind", default=kind, help="tree (corridor_tree) or ring (ring_building)")
+    parser.add_argument("--length", type=float, default=length)
+    parser.add_argument("--seeds", default=seeds, help="comma list; never the benchmark's")
+    parser.add_argument("--settings", default=settings)
+    parser.add_argument("--route-factor", type=float, default=6.0)
+    parser.add_argument("--candidate", action="append", default=[], help="NAME=YAML overrides; 'default' always runs first")
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
+    parser.add_argument("--json", type=Path, help="also write the rows here")
+    return parser
+
+
+def candidates(items: list[str]) -> dict[str, dict[str, Any]]:
+    """``--candidate NAME=YAML`` arguments as {name: overrides}, the defaults ("default") first."""
+    out: dict[str, dict[str, Any]] = {"default": {}}
+    for item in items:
+        name, _, text = item.partition("=")
+        out[name] = yaml.safe_load(text) or {}
+    return out

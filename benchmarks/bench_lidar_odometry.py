@@ -15,15 +15,13 @@ earlier one. A candidate is a name and a YAML mapping of ``OdometryConfig`` over
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
+from _tuning import Recording, git_state, parse_list, recording, replay_parser
+from _tuning import candidates as candidates_of
 
 from navtopo import geometry as se2
 from navtopo.odometry import LidarOdometry, OdometryConfig
@@ -71,20 +69,8 @@ def replay(rec: Recording, overrides: dict[str, Any]) -> dict[str, Any]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--kind", default="tree", help="tree (corridor_tree) or ring (ring_building)")
-    parser.add_argument("--length", type=float, default=150.0)
-    parser.add_argument("--seeds", default="101,102,103", help="comma list; never the benchmark's")
-    parser.add_argument("--settings", default="noisy")
-    parser.add_argument("--route-factor", type=float, default=6.0)
-    parser.add_argument("--candidate", action="append", default=[], help="NAME=YAML overrides; 'default' always runs first")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
-    parser.add_argument("--json", type=Path, help="also write the rows here")
-    args = parser.parse_args()
-    candidates: dict[str, dict[str, Any]] = {"default": {}}
-    for item in args.candidate:
-        name, _, text = item.partition("=")
-        candidates[name] = yaml.safe_load(text) or {}
+    args = replay_parser(__doc__, kind="tree", length=150.0, seeds="101,102,103", settings="noisy").parse_args()
+    candidates = candidates_of(args.candidate)
     rows = []
     print(
         "| scene | candidate | error median / p95 / max (m) | first visits median / p95 / max (m) "

@@ -14,15 +14,13 @@ overrides.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
+from _tuning import Recording, git_state, parse_list, recording, replay_parser
+from _tuning import candidates as candidates_of
 
 from navtopo import geometry as se2
 from navtopo.graph_poses import relaxed_poses
@@ -81,20 +79,8 @@ def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--kind", default="ring", help="tree (corridor_tree) or ring (ring_building)")
-    parser.add_argument("--length", type=float, default=140.0)
-    parser.add_argument("--seeds", default="101", help="comma list; never the benchmark's")
-    parser.add_argument("--settings", default="precise,noisy")
-    parser.add_argument("--route-factor", type=float, default=6.0)
-    parser.add_argument("--candidate", action="append", default=[], help="NAME=YAML overrides; 'default' always runs first")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
-    parser.add_argument("--json", type=Path, help="also write the rows here")
-    args = parser.parse_args()
-    candidates = {"default": {}}
-    for item in args.candidate:
-        name, _, text = item.partition("=")
-        candidates[name] = yaml.safe_load(text) or {}
+    args = replay_parser(__doc__, kind="ring", length=140.0, seeds="101", settings="precise,noisy").parse_args()
+    candidates = candidates_of(args.candidate)
     rows = []
     for seed in parse_list(args.seeds, int):
         for setting in parse_list(args.settings):
