@@ -33,9 +33,12 @@ graphs", and measurements on the bundled scenarios):
   visit went from 0.27 / 0.41 m off at most to 0.03 / 0.03 m, and the metric baseline's map
   (ATE, trees 101-103) from 0.086 to 0.021 m mean (BENCHMARKS.md, session 11). Cost: about twice
   kiss-icp's CPU per scan (13 ms instead of 6.5 on the shared machine). Off, kiss-icp alone.
-  Not a win everywhere: on a generated noisy ring building (seed 101) the positions drift more
-  along the corridors (first visits 0.35 m median off, kiss-icp alone 0.16 m); refining the
-  heading alone lay between the two on both kinds of scene (BENCHMARKS.md, session 11).
+  Along a corridor the walls fix the heading and the cross position but not where along it the
+  robot is; there (``line_corner_ratio``) the scan points that land on door jambs and corners,
+  which lie on no line, pull along that free direction alone. Without that the position along
+  the corridors of a generated noisy ring building (seed 101) followed the wheels' prior and
+  drifted (first visits 0.46 m median off, kiss-icp alone 0.33 m); with it 0.19 m, while the
+  generated trees' first visits moved by 6 mm at most (BENCHMARKS.md, session 12).
 
 The robot drives on a plane, so each estimate is projected to SE(2) (x, y, yaw) and, with
 ``planar`` on, fed back as a planar pose before the local map is updated: the unobservable z,
@@ -98,6 +101,12 @@ class OdometryConfig(BaseModel):
     line_iterations: int = Field(6, ge=1, description="Gauss-Newton steps of the point-to-line refinement")
     line_prior_xy: float = Field(0.05, gt=0, description="m; pull to the wheel-seeded prediction where walls do not constrain")
     line_prior_yaw_deg: float = Field(0.5, gt=0, description="deg; the same for the heading")
+    line_corner_ratio: float = Field(
+        0.2,
+        ge=0,
+        description="where the walls' information in the weakest direction is below this fraction of the "
+        "strongest (a corridor), scan points at corners and door jambs pull along it; 0: never",
+    )
     line_bootstrap: bool = Field(True, description="register the bootstrap scans by point-to-line alone")
 
     def kiss_config(self) -> KISSConfig:
@@ -150,7 +159,8 @@ def _unique_xy(points: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
 
 def _line_normals(points: NDArray[np.float64], tree: cKDTree, at: NDArray[np.int64], radius: float) -> NDArray[np.float64]:
     """(len(at), 2) unit normals of the line through each ``points[at]`` and its neighbours within
-    ``radius``; NaN where they do not lie on one (a corner, clutter, a lone return)."""
+    ``radius``; (NaN, NaN) where they are too few (a lone return) and (NaN, 0) where they do not
+    lie on one line (a corner, a door jamb, clutter)."""
     distances, index = tree.query(points[at], k=8, distance_upper_bound=radius)
     valid = np.isfinite(distances)
     count = valid.sum(axis=1)
@@ -167,6 +177,7 @@ def _line_normals(points: NDArray[np.float64], tree: cKDTree, at: NDArray[np.int
     direction = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     normals = np.stack([-np.sin(direction), np.cos(direction)], axis=1)
     normals[~line] = np.nan
+    normals[~line & (count >= 4), 1] = 0.0  # (NaN, 0): enough neighbours, not on one line (a corner)
     return normals
 
 
@@ -191,7 +202,7 @@ def point_to_line(
     if len(source) < 10 or len(map_points) < 10:
         return pose
     tree = cKDTree(map_points)
-    normals = np.full((len(map_points), 2), np.inf)  # inf: not computed yet, NaN: not on a line
+    normals = np.full((len(map_points), 2), np.inf)  # inf: not computed yet, NaN: not on a line (NaN, 0: a corner)
     centre = pose.copy() if prior is None else np.asarray(prior, dtype=np.float64)
     information = np.array([config.line_prior_xy, config.line_prior_xy, np.radians(config.line_prior_yaw_deg)]) ** -2.0
     scale = config.line_distance / 3.0
@@ -208,11 +219,27 @@ def point_to_line(
         on_line = np.isfinite(n[:, 0])
         if on_line.sum() < 10:
             break
-        n, moved, nearest = n[on_line], moved[on_line], nearest[on_line]
-        residual = (n * (moved - map_points[nearest])).sum(axis=1)
+        offset = moved - map_points[nearest]
         lever = moved - pose[:2]  # d(R p)/dyaw = J R p, J = [[0, -1], [1, 0]]
-        jacobian = np.column_stack([n, n[:, 1] * lever[:, 0] - n[:, 0] * lever[:, 1]])
+        line_n, line_lever = n[on_line], lever[on_line]
+        residual = (line_n * offset[on_line]).sum(axis=1)
+        jacobian = np.column_stack([line_n, line_n[:, 1] * line_lever[:, 0] - line_n[:, 0] * line_lever[:, 1]])
         weight = 1.0 / (1.0 + (residual / scale) ** 2) / config.line_sigma**2
+        corner = ~on_line & np.isfinite(n[:, 1])
+        if config.line_corner_ratio > 0 and corner.any():
+            # Walls leave a direction free (along a corridor): the door jambs and corners there
+            # pull along that direction alone, as if a wall ran across it through them.
+            values, vectors = np.linalg.eigh((jacobian[:, :2] * weight[:, None]).T @ jacobian[:, :2])
+            if values[0] < config.line_corner_ratio * values[1]:
+                free = vectors[:, 0]
+                corner_residual = offset[corner] @ free
+                corner_lever = lever[corner]
+                corner_jacobian = np.column_stack(
+                    [np.full((len(corner_residual), 2), free), free[1] * corner_lever[:, 0] - free[0] * corner_lever[:, 1]]
+                )
+                residual = np.concatenate([residual, corner_residual])
+                jacobian = np.vstack([jacobian, corner_jacobian])
+                weight = np.concatenate([weight, 1.0 / (1.0 + (corner_residual / scale) ** 2) / config.line_sigma**2])
         hessian = (jacobian * weight[:, None]).T @ jacobian + np.diag(information)
         difference = pose - centre
         difference[2] = se2.wrap_angle(difference[2])

@@ -118,3 +118,22 @@ def test_point_to_line_leaves_the_unconstrained_direction_of_a_bare_corridor_to_
     assert abs(estimate[1] - true[1]) < 0.01
     assert abs(se2.wrap_angle(estimate[2] - true[2])) < np.radians(0.1)
     assert abs(estimate[0] - prior[0]) < 0.01
+
+
+def test_point_to_line_takes_the_position_along_a_corridor_from_its_door_jambs():
+    """A corridor whose walls are straight but for one door niche: the niche's jambs lie on no
+    line, yet they fix where along the corridor the scan was taken, against a prior 0.08 m off
+    there (a few jamb returns against the prior: most of the way, not all of it). Without them
+    (``line_corner_ratio`` 0) the position along the corridor stays the prior's."""
+    world = World.solid(-3.0, -3.0, 43.0, 3.0).carve(-1.0, -1.2, 41.0, 1.2).carve(20.8, 1.2, 21.7, 1.4)
+    true = np.array([20.0, 0.3, 0.02])
+    seen_from = true - [0.5, 0.0, 0.0]
+    map_points = _to_world(_walls(world, seen_from), seen_from)
+    guess = true + np.array([0.05, -0.03, np.radians(1.0)])
+    prior = true + np.array([0.08, 0.0, 0.0])
+    estimate = point_to_line(_walls(world, true), map_points, guess, OdometryConfig(), prior)
+    assert abs(estimate[0] - true[0]) < 0.025
+    assert abs(estimate[1] - true[1]) < 0.005
+    assert abs(se2.wrap_angle(estimate[2] - true[2])) < np.radians(0.05)
+    walls_only = point_to_line(_walls(world, true), map_points, guess, OdometryConfig(line_corner_ratio=0.0), prior)
+    assert abs(walls_only[0] - prior[0]) < 0.005
