@@ -206,6 +206,15 @@ def point_to_line(
     centre = pose.copy() if prior is None else np.asarray(prior, dtype=np.float64)
     information = np.array([config.line_prior_xy, config.line_prior_xy, np.radians(config.line_prior_yaw_deg)]) ** -2.0
     scale = config.line_distance / 3.0
+
+    def rows(directions: NDArray, lever: NDArray) -> NDArray:
+        """Jacobian rows of residuals measured along unit ``directions`` (d(R p)/dyaw = J R p)."""
+        return np.column_stack([directions, directions[:, 1] * lever[:, 0] - directions[:, 0] * lever[:, 1]])
+
+    def weights(residual: NDArray) -> NDArray:
+        """Cauchy-kernel information of each residual."""
+        return 1.0 / (1.0 + (residual / scale) ** 2) / config.line_sigma**2
+
     for _ in range(config.line_iterations):
         c, s = np.cos(pose[2]), np.sin(pose[2])
         moved = source @ np.array([[c, s], [-s, c]]) + pose[:2]
@@ -220,26 +229,21 @@ def point_to_line(
         if on_line.sum() < 10:
             break
         offset = moved - map_points[nearest]
-        lever = moved - pose[:2]  # d(R p)/dyaw = J R p, J = [[0, -1], [1, 0]]
-        line_n, line_lever = n[on_line], lever[on_line]
-        residual = (line_n * offset[on_line]).sum(axis=1)
-        jacobian = np.column_stack([line_n, line_n[:, 1] * line_lever[:, 0] - line_n[:, 0] * line_lever[:, 1]])
-        weight = 1.0 / (1.0 + (residual / scale) ** 2) / config.line_sigma**2
+        lever = moved - pose[:2]
+        residual = (n[on_line] * offset[on_line]).sum(axis=1)
+        jacobian = rows(n[on_line], lever[on_line])
+        weight = weights(residual)
         corner = ~on_line & np.isfinite(n[:, 1])
         if config.line_corner_ratio > 0 and corner.any():
             # Walls leave a direction free (along a corridor): the door jambs and corners there
             # pull along that direction alone, as if a wall ran across it through them.
             values, vectors = np.linalg.eigh((jacobian[:, :2] * weight[:, None]).T @ jacobian[:, :2])
             if values[0] < config.line_corner_ratio * values[1]:
-                free = vectors[:, 0]
-                corner_residual = offset[corner] @ free
-                corner_lever = lever[corner]
-                corner_jacobian = np.column_stack(
-                    [np.full((len(corner_residual), 2), free), free[1] * corner_lever[:, 0] - free[0] * corner_lever[:, 1]]
-                )
+                free = np.broadcast_to(vectors[:, 0], (int(corner.sum()), 2))
+                corner_residual = (free * offset[corner]).sum(axis=1)
                 residual = np.concatenate([residual, corner_residual])
-                jacobian = np.vstack([jacobian, corner_jacobian])
-                weight = np.concatenate([weight, 1.0 / (1.0 + (corner_residual / scale) ** 2) / config.line_sigma**2])
+                jacobian = np.vstack([jacobian, rows(free, lever[corner])])
+                weight = np.concatenate([weight, weights(corner_residual)])
         hessian = (jacobian * weight[:, None]).T @ jacobian + np.diag(information)
         difference = pose - centre
         difference[2] = se2.wrap_angle(difference[2])
