@@ -49,7 +49,7 @@ test-slow: setup
 	$(PY) -m pytest -m slow -q
 
 lint: setup
-	$(VENV)/bin/ruff check navtopo baselines scenarios runners reports tests benchmarks tools
+	$(VENV)/bin/ruff check navkit navtopo baselines scenarios runners reports tests benchmarks tools
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

@@ -31,9 +31,9 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
-from navtopo import geometry as se2
-from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.types import Observation
+from navkit import geometry as se2
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.types import Observation
 from runners.mapping import ROUTE_GOAL_TOLERANCE_M, STUCK_S
 from runners.sim import MAPPING_STREAM, Simulator
 from scenarios import Scenario, generators

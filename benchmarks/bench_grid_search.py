@@ -1,4 +1,4 @@
-"""Plan-time benchmark of navtopo.grid_search on large synthetic grids.
+"""Plan-time benchmark of navkit.grid_search on large synthetic grids.
 
 Two kinds of grid per size: a random obstacle field (discs and boxes, ~25 % blocked) and a
 maze (a perfect maze of corridors on a coarse lattice, scaled up), both planned corner to
@@ -21,7 +21,7 @@ from functools import partial
 
 import numpy as np
 
-from navtopo import grid_search
+from navkit import grid_search
 
 
 def obstacle_field(size: int, rng: np.random.Generator, blocked: float = 0.25) -> np.ndarray:

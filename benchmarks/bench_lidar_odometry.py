@@ -1,4 +1,4 @@
-"""The lidar odometry (``navtopo.odometry``) alone on generated scenes, replayed from recorded
+"""The lidar odometry (``navkit.odometry``) alone on generated scenes, replayed from recorded
 mapping drives, against the true poses: for candidate configs, the position error over the whole
 drive and at each place's first visit (where NavTopo makes its locations, so what a map-frame goal
 is converted with), the heading error, and the seconds the replay took.
@@ -23,8 +23,8 @@ import numpy as np
 from _tuning import Recording, git_state, parse_list, recording, replay_parser
 from _tuning import candidates as candidates_of
 
-from navtopo import geometry as se2
-from navtopo.odometry import LidarOdometry, OdometryConfig
+from navkit import geometry as se2
+from navkit.odometry import LidarOdometry, OdometryConfig
 
 FIRST_VISIT_M = 2.0
 

@@ -22,8 +22,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from baselines.metric_grid.occupancy import GridMap
-from navtopo import geometry as se2
-from navtopo.local_grid import OCCUPIED
+from navkit import geometry as se2
+from navkit.raster import OCCUPIED
 from scenarios import load_scenario
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import hint_chain, relaxed_poses
 

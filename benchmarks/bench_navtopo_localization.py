@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 from navtopo.local_grid import grid_from_points
 from navtopo.scan_matching import prepare
 from navtopo.system import NavTopo, NavTopoConfig

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from navtopo.follower import FollowerConfig, PathFollower
+from navkit.follower import FollowerConfig, PathFollower
 from runners.sim import Simulator
 from scenarios import load_scenario
 

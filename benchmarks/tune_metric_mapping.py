@@ -45,8 +45,8 @@ from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
 from bench_metric_map_quality import wall_quality
 
 from baselines.metric_grid.system import NOISY_ODOMETRY, PRECISE_ODOMETRY, MetricGrid, MetricGridConfig
-from navtopo import geometry as se2
-from navtopo.odometry import LidarOdometry
+from navkit import geometry as se2
+from navkit.odometry import LidarOdometry
 from runners.systems import SystemContext
 
 

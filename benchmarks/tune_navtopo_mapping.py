@@ -22,7 +22,7 @@ import numpy as np
 from _tuning import Recording, git_state, parse_list, recording, replay_parser
 from _tuning import candidates as candidates_of
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 from navtopo.graph_poses import relaxed_poses
 from navtopo.system import NavTopo, NavTopoConfig
 from runners.mapping import revisited_late, unjoined_locations

@@ -44,8 +44,9 @@ from baselines.metric_grid.localization import ScanToMap, ScanToMapConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.scan2d import voxel_filter_2d
 from baselines.metric_grid.system import ScanConfig
-from navtopo import geometry as se2
-from navtopo.local_grid import FREE, obstacle_points
+from navkit import geometry as se2
+from navkit.raster import FREE
+from navkit.scan import obstacle_points
 from runners.sim import Simulator
 
 TUNING_STREAM = 3  # the simulator's noise stream for these scans (mapping is 1, trials 2)
@@ -106,7 +107,7 @@ def run_scene(scenario, key: str, maps: dict[str, GridMap], args) -> list[dict[s
     rng = np.random.default_rng([seed, TUNING_STREAM])
     poses = sample_poses(scenario, next(iter(maps.values())), args.poses, rng)
     starts = rng.normal(0.0, 1.0, (len(poses), 3)) * [args.perturb_xy, args.perturb_xy, np.radians(args.perturb_yaw_deg)]
-    band = ScanConfig().grid_config()
+    band = ScanConfig()
     base = ScanToMapConfig()
     localizers = {
         name: {d: ScanToMap(grid_map, base.model_copy(update={"wall_depth": d})) for d in args.depths}

@@ -3,7 +3,7 @@
 Muravyev & Yakovlev, Sec. "Graph Structure": a vertex is a location ``v = (grid_v, desc_v)`` —
 here with its creation stamp and the odometry pose at creation (a hint for drift-gated
 localization, never a global position); an edge ``e = (u, v, T_uv)`` stores the pose of v's
-observation point in u's frame (``navtopo.geometry.between``), and its inverse for the way back.
+observation point in u's frame (``navkit.geometry.between``), and its inverse for the way back.
 Dijkstra weighs an edge by the length of its translation.
 
 On disk a graph is a folder: ``graph.json`` (format, vertices, edges), ``grids/<id>.png`` (one
@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from navtopo.files import atomic_write
-from navtopo.geometry import compose, inverse
+from navkit.files import atomic_write
+from navkit.geometry import compose, inverse
 from navtopo.local_grid import CroppedGrid, decode_png, encode_png
 
 FORMAT = "navtopo-graph/1"

@@ -16,7 +16,7 @@ The edges do not drift, but each is off by ~0.25° (rms, precise or noisy odomet
 two single-scan grids of 0.1 m cells, whose optimum itself sits that far from the truth), and on a
 tree of locations nothing closes: chained over twenty edges to a far branch that is a degree,
 1-1.5 m at 80 m. A graph made with ``NavTopoConfig.lidar_hints`` also keeps, per location, the
-pose of a lidar odometry (KISS-ICP refined point-to-line, ``navtopo.odometry``) run alongside the
+pose of a lidar odometry (KISS-ICP refined point-to-line, ``navkit.odometry``) run alongside the
 mapping: scan-to-map registration of every scan drifts far less than either. On the noisy drives of
 generated 150 m trees (seeds 101-103) the map poses were 0.02-0.08 m off at most, kiss-icp alone
 0.09-0.25 m, the relaxation over the odometry hints 0.22-0.90 m. The relaxation takes the lidar
@@ -30,7 +30,7 @@ import scipy.sparse as sparse
 from numpy.typing import NDArray
 from scipy.sparse.linalg import spsolve
 
-from navtopo.geometry import between, wrap_angle
+from navkit.geometry import between, wrap_angle
 from navtopo.graph import TopologicalGraph
 
 EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm median, up to 0.2 m)

@@ -21,7 +21,7 @@ range r proves the floor free up to r), marking cells ``FREE`` and stopping at t
 cell. Directions with no return (open sky, beyond max range) stay ``UNKNOWN``: unlike the
 reference implementation, "no return" never means "free".
 
-Warping (``warp``) and overlap (``known_overlap``, ``overlap``; ``known_iou`` too) follow ``navtopo.geometry``:
+Warping (``warp``) and overlap (``known_overlap``, ``overlap``; ``known_iou`` too) follow ``navkit.geometry``:
 ``warp(grid, T)`` is the grid as seen from the frame ``T`` (a pose given in the grid's frame), so a
 grid taken at pose A, warped by ``between(A, B)``, lines up with the grid taken at pose B.
 
@@ -39,15 +39,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from navtopo.geometry import inverse
-
-UNKNOWN = 0
-FREE = 1
-OCCUPIED = 2
+from navkit.geometry import inverse
+from navkit.raster import OCCUPIED, UNKNOWN
+from navkit.scan import CEILING_HEIGHT, FLOOR_HEIGHT, MAX_GAP_DEG, obstacle_points, trace_scan
 
 Grid = NDArray[np.uint8]
 
@@ -76,10 +73,10 @@ class GridConfig(BaseModel):
 
     resolution: float = Field(default=0.1, gt=0.0, description="metres per cell")
     radius: float = Field(default=15.0, gt=0.0, description="half the side of the grid, metres")
-    floor_height: float = Field(default=0.15, description="lowest obstacle height above the floor, m")
-    ceiling_height: float = Field(default=1.8, description="highest obstacle height above the floor, m")
+    floor_height: float = Field(default=FLOOR_HEIGHT, description="lowest obstacle height above the floor, m")
+    ceiling_height: float = Field(default=CEILING_HEIGHT, description="highest obstacle height above the floor, m")
     max_gap_deg: float = Field(
-        default=2.5,
+        default=MAX_GAP_DEG,
         ge=0.0,
         description="free space is filled between returns at most this far apart in azimuth; "
         "wider gaps are directions without returns and stay unknown",
@@ -107,17 +104,6 @@ class GridConfig(BaseModel):
     def size(self) -> int:
         """Cells per side: ``2 * round(radius / resolution)`` (300 by default)."""
         return 2 * int(round(self.radius / self.resolution))
-
-
-def obstacle_points(points: ArrayLike, config: GridConfig | None = None) -> NDArray:
-    """The returns that are obstacles: ``floor_height <= z <= ceiling_height``.
-
-    points: (N, 3) in the robot frame, z up from the floor. Returns (M, 3), same dtype.
-    """
-    config = config or GridConfig()
-    p = np.asarray(points)
-    z = p[:, 2]
-    return p[(z >= config.floor_height) & (z <= config.ceiling_height)]
 
 
 def xy_to_cell(xy: ArrayLike, config: GridConfig | None = None) -> NDArray[np.int64]:
@@ -149,104 +135,6 @@ def occupied_xy(grid: Grid, config: GridConfig | None = None) -> NDArray[np.floa
     return cell_to_xy(np.stack([rows, cols], axis=-1), config)
 
 
-@njit(cache=True, nogil=True)
-def _trace_ray(grid, origin, end_u, end_v):  # pragma: no cover - compiled
-    """Mark cells FREE along the segment origin -> end, in continuous cell coordinates (cell c
-    covers [c, c + 1); the origin is ``(origin, origin)``), stopping at the first OCCUPIED cell or
-    the grid's edge. Returns how far the free part reaches, in cells.
-
-    Grid traversal of Amanatides & Woo (1987): every cell the segment crosses is visited once.
-    """
-    n_rows, n_cols = grid.shape
-    du = end_u - origin
-    dv = end_v - origin
-    length = np.sqrt(du * du + dv * dv)
-    if length < 1e-9:
-        return 0.0
-    # start a hair inside the segment: the origin lies on a cell corner
-    u = origin + du * 1e-9
-    v = origin + dv * 1e-9
-    cu = int(np.floor(u))
-    cv = int(np.floor(v))
-    eu = int(np.floor(end_u))
-    ev = int(np.floor(end_v))
-    if du > 0:
-        step_u, t_max_u, t_delta_u = 1, (cu + 1 - u) / du, 1.0 / du
-    elif du < 0:
-        step_u, t_max_u, t_delta_u = -1, (u - cu) / -du, -1.0 / du
-    else:
-        step_u, t_max_u, t_delta_u = 0, np.inf, np.inf
-    if dv > 0:
-        step_v, t_max_v, t_delta_v = 1, (cv + 1 - v) / dv, 1.0 / dv
-    elif dv < 0:
-        step_v, t_max_v, t_delta_v = -1, (v - cv) / -dv, -1.0 / dv
-    else:
-        step_v, t_max_v, t_delta_v = 0, np.inf, np.inf
-    t_entry = 0.0  # where the segment enters the current cell, as a fraction of its length
-    for _ in range(abs(eu - cu) + abs(ev - cv) + 1):
-        if cu < 0 or cv < 0 or cu >= n_cols or cv >= n_rows or grid[cv, cu] == 2:  # OCCUPIED
-            return t_entry * length
-        grid[cv, cu] = 1  # FREE
-        if cu == eu and cv == ev:
-            break
-        if t_max_u < t_max_v:
-            t_entry = t_max_u
-            cu += step_u
-            t_max_u += t_delta_u
-        else:
-            t_entry = t_max_v
-            cv += step_v
-            t_max_v += t_delta_v
-    return length
-
-
-@njit(cache=True, nogil=True)
-def _trace_scan(grid, ends_u, ends_v, origin, max_gap, similar_ratio):  # pragma: no cover
-    """Trace every return, then fill between angularly adjacent directions.
-
-    A lidar's rays fan out: at 1° steps they are 0.17 m apart at 10 m, and 0.1 m cells between
-    them would stay unknown. Between two neighbouring directions at most ``max_gap`` radians apart,
-    extra rays are traced every half cell at the far end, reaching the interpolated range (or the
-    shorter of the two when they differ by more than ``similar_ratio``: a depth edge). Wider gaps
-    are directions without returns and stay unknown.
-    """
-    n = ends_u.shape[0]
-    azimuth = np.empty(n)
-    reach = np.empty(n)
-    for k in range(n):
-        reach[k] = _trace_ray(grid, origin, ends_u[k], ends_v[k])
-        azimuth[k] = np.arctan2(ends_v[k] - origin, ends_u[k] - origin)
-    order = np.argsort(azimuth)
-    # one direction per distinct azimuth (several channels share one), with the longest reach
-    dir_az = np.empty(n)
-    dir_reach = np.empty(n)
-    m = 0
-    for k in order:
-        if m > 0 and azimuth[k] - dir_az[m - 1] < 1e-4:
-            dir_reach[m - 1] = max(dir_reach[m - 1], reach[k])
-        else:
-            dir_az[m] = azimuth[k]
-            dir_reach[m] = reach[k]
-            m += 1
-    for i in range(m):
-        j = (i + 1) % m
-        gap = dir_az[j] - dir_az[i]
-        if j == 0:
-            gap += 2.0 * np.pi
-        if gap <= 0.0 or gap > max_gap:
-            continue
-        r_i = dir_reach[i]
-        r_j = dir_reach[j]
-        r_far = max(r_i, r_j)
-        similar = abs(r_i - r_j) <= max(similar_ratio * r_far, 2.0)
-        count = int(gap * r_far / 0.5)
-        for c in range(1, count + 1):
-            f = c / (count + 1.0)
-            r = r_i + f * (r_j - r_i) if similar else min(r_i, r_j)
-            a = dir_az[i] + f * gap
-            _trace_ray(grid, origin, origin + r * np.cos(a), origin + r * np.sin(a))
-
-
 def grid_from_points(points: ArrayLike, config: GridConfig | None = None) -> Grid:
     """A location grid from one lidar cloud.
 
@@ -272,7 +160,7 @@ def grid_from_points(points: ArrayLike, config: GridConfig | None = None) -> Gri
     end_cells = np.floor(ends).astype(np.int64)
     _, first = np.unique(end_cells[:, 0] * (1 << 32) + end_cells[:, 1], return_index=True)
     ends = ends[first]
-    _trace_scan(
+    trace_scan(
         grid,
         ends[:, 0].copy(),
         ends[:, 1].copy(),

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.geometry import between
+from navkit.geometry import between
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import GridConfig
 from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match, prepare

@@ -31,7 +31,7 @@ pose in the location the new one was made from, as odometry carried it since its
 Every new edge is checked first (the reference code did not): its length must be at most
 ``2 * max_edge_length``, and where the graph already joins its ends by a path that is not much
 longer (no loop to close), the edge must agree with the pose composed along that path.
-Relative poses follow ``navtopo.geometry``: an edge (u, v, T_uv) holds v's observation point in
+Relative poses follow ``navkit.geometry``: an edge (u, v, T_uv) holds v's observation point in
 u's frame. No ground truth enters: vertices live in their own frames and their odometry poses are
 kept only as hints.
 """
@@ -44,9 +44,10 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.geometry import between, compose, compose_with_covariance, inverse_with_covariance, wrap_angle
+from navkit.geometry import between, compose, compose_with_covariance, inverse_with_covariance, wrap_angle
+from navkit.raster import UNKNOWN
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import UNKNOWN, CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
+from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
 

@@ -41,18 +41,20 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.follower import PathFollower
-from navtopo.geometry import between, compose, distance_to_polyline, inverse, transform_points
+from navkit.follower import PathFollower
+from navkit.geometry import between, compose, distance_to_polyline, inverse, transform_points
+from navkit.grid_planning import plan_path
+from navkit.grid_search import inflate_free
+from navkit.obstacles import ObstacleMemory
+from navkit.raster import FREE, OCCUPIED, GridFrame
+from navkit.scan import obstacle_points
+from navkit.types import Command, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
-from navtopo.grid_planning import GridFrame, plan_path
-from navtopo.grid_search import inflate_free
-from navtopo.local_grid import FREE, OCCUPIED, GridConfig, grid_from_points, obstacle_points, xy_to_cell
+from navtopo.local_grid import GridConfig, grid_from_points, xy_to_cell
 from navtopo.mapping import GraphMaintainer
-from navtopo.obstacles import ObstacleMemory
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
 from navtopo.scan_matching import PreparedGrid, prepare
-from navtopo.types import Command, NavStatus, Observation, Status
 
 
 class StartupConfig(BaseModel):
@@ -608,11 +610,8 @@ class Navigator:
         return self._path_blocked(pose)
 
     def _path_blocked(self, pose: NDArray) -> bool:
-        obstacles = self._recent_obstacles()
-        if not len(obstacles) or not self.follower.has_path:
-            return False
-        ahead = np.vstack([pose[None, :2], self.follower.path_ahead(self.config.block_check_distance)])
-        return bool(distance_to_polyline(obstacles, ahead).min() < self.robot_radius + self.config.block_clearance)
+        clearance = self.robot_radius + self.config.block_clearance
+        return self.follower.path_ahead_blocked(self._recent_obstacles(), pose, clearance, self.config.block_check_distance)
 
     def _plan(self, obs: Observation, vertex: int, pose: NDArray, tentative: bool = False) -> bool:
         """Global path from ``vertex`` (Dijkstra once per goal and per removed edge), then the local

@@ -8,7 +8,7 @@ Local: a metric path in the frame of the current location ``v_cur``, on its *uni
 current location's grid and its neighbours' grids, warped into ``v_cur``'s frame by the edges'
 relative poses (occupied wins over free, free over unknown), with obstacles the current scan sees
 that the map does not explain blocked on top. The path is planned with the shared grid planner
-(``navtopo.grid_planning.plan_path``: free cells eroded by the robot radius plus a margin, then the
+(``navkit.grid_planning.plan_path``: free cells eroded by the robot radius plus a margin, then the
 radius alone, then unknown cells counted as free) to a target:
 
 * ``smoothing: none`` (the paper's): the next vertex of the global path, or the goal in ``v_goal``;
@@ -35,11 +35,12 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo import grid_search
-from navtopo.geometry import compose, inverse, transform_points
+from navkit import grid_search
+from navkit.geometry import compose, inverse, transform_points
+from navkit.grid_planning import PlannedPath, plan_path
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
 from navtopo.graph import TopologicalGraph
-from navtopo.grid_planning import GridFrame, PlannedPath, plan_path
-from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, GridConfig, warp_window, warped_bounds
+from navtopo.local_grid import GridConfig, warp_window, warped_bounds
 
 
 class PlanningConfig(BaseModel):

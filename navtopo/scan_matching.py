@@ -19,7 +19,7 @@ images and an iterative outlier rejection. This file does the same job in four s
 4. verdict: wall agreement (occupied cells of each grid that lie near occupied cells of the other,
    against those that fall in the other's free space) times the known-area IoU.
 
-Direction convention (as ``navtopo.geometry``): ``match(reference, query)`` returns the pose of
+Direction convention (as ``navkit.geometry``): ``match(reference, query)`` returns the pose of
 the query's observation point in the reference grid's frame. If the reference was observed at
 pose A and the query at pose B (any common frame), the ideal result is ``between(A, B)``, and
 ``transform_points(result.pose, p)`` maps a point p of the query frame into the reference frame.
@@ -38,14 +38,9 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.geometry import inverse, transform_points, wrap_angle
-from navtopo.local_grid import (
-    OCCUPIED,
-    UNKNOWN,
-    Grid,
-    GridConfig,
-    cell_to_xy,
-)
+from navkit.geometry import inverse, transform_points, wrap_angle
+from navkit.raster import OCCUPIED, UNKNOWN
+from navtopo.local_grid import Grid, GridConfig, cell_to_xy
 
 
 class MatchingConfig(BaseModel):

@@ -24,18 +24,18 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, field_validator
 
-from navtopo.follower import FollowerConfig, PathFollower
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.odometry import LidarOdometry, OdometryConfig
+from navkit.types import Command, MemoryBreakdown, NavStatus, Observation
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import hint_chain, relaxed_poses
 from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
 from navtopo.navigation import NavigationConfig, Navigator, Startup, StartupConfig
-from navtopo.odometry import LidarOdometry, OdometryConfig
 from navtopo.place_recognition import available_descriptors, default_weights_path, make_descriptor
 from navtopo.planning import GlobalPlanner, LocalPlanner, PlanningConfig, UnionGrids
 from navtopo.scan_matching import MatchingConfig
-from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation
 
 
 class NavTopoConfig(BaseModel):
@@ -110,7 +110,7 @@ class NavTopo:
     @staticmethod
     def warm_up() -> None:
         """Load the compiled kernels (grids, matching, planning) before anything is timed."""
-        from navtopo.grid_search import inflate_free, nearest_free, theta_star
+        from navkit.grid_search import inflate_free, nearest_free, theta_star
         from navtopo.local_grid import grid_from_points
         from navtopo.scan_matching import match
 

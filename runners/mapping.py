@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.types import MEMORY_PARTS
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.types import MEMORY_PARTS
 from runners.metrics import edge_errors, stats_ms, unjoined_neighbours
 from runners.payload import ScenarioFiles, pack_dir
 from runners.protocol import TrialProtocol

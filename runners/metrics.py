@@ -11,7 +11,7 @@ Reference path: the any-angle ground-truth shortest path from start to goal on t
 * planning time: wall clock of each planning call, in ms: every call (``planning_ms``), the first
   full start-to-goal plan of each trial (``first_plan_ms``), and loading the map with everything
   precomputed before the first plan (``map_load_ms``), each reported on its own.
-* memory: one breakdown for every system (``navtopo.types.MemoryBreakdown``: map, localization,
+* memory: one breakdown for every system (``navkit.types.MemoryBreakdown``: map, localization,
   derived, model, total; exact bytes), the saved map on disk (all, and per part), RSS growth of a
   fresh worker from before loading the map to after the first plan, and its whole RSS then.
 * tracking error: distance between a system's own map-frame pose estimate and the truth, per tick.
@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from navtopo import geometry as se2
-from navtopo.types import MEMORY_PARTS
+from navkit import geometry as se2
+from navkit.types import MEMORY_PARTS
 
 GOAL_TOLERANCE_M = 0.5
 TIMEOUT_FACTOR = 3.0

@@ -34,8 +34,8 @@ import numpy as np
 import psutil
 from numpy.typing import NDArray
 
-from navtopo import geometry as se2
-from navtopo import grid_search
+from navkit import geometry as se2
+from navkit import grid_search
 from runners.mapping import context_for, disk_report
 from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, judge, timeout_s, trajectory_length, trial_record
 from runners.payload import ScenarioFiles, pack_dir, unpack_dir

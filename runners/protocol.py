@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 from scenarios import Scenario
 from scenarios.schema import GOAL_TOLERANCE_M, OdometryNoiseSpec
 

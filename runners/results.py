@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from navtopo.files import atomic_write
+from navkit.files import atomic_write
 
 
 def write_json(path: Path, data: Any) -> None:

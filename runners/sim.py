@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from navtopo import geometry as se2
-from navtopo.types import Command, Observation
+from navkit import geometry as se2
+from navkit.types import Command, Observation
 from scenarios import Scenario
 from scenarios.schema import SUBSTEP_S  # kinematic integration step; trajectories are sampled at this tick
 

@@ -32,11 +32,12 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict
 
-from navtopo import geometry as se2
-from navtopo import grid_search
-from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.grid_planning import GridFrame, plan_path
-from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
+from navkit import geometry as se2
+from navkit import grid_search
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.grid_planning import plan_path
+from navkit.raster import GridFrame
+from navkit.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 from scenarios.schema import RobotSpec, SensorSpec
 
 __all__ = [

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 from skimage.morphology import skeletonize
 
-from navtopo import grid_search
+from navkit import grid_search
 from scenarios.world import World
 
 SPUR_LENGTH_M = 1.5  # skeleton branches shorter than this that end nowhere are pruned (corner spurs)

@@ -11,6 +11,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from navkit.errors import FileProblem
 from scenarios.strict_yaml import YamlProblem, load_file
 
 FORMAT = "navtopo-scenario/1"
@@ -32,12 +33,8 @@ MAX_SENSOR_RANGE_M = 500.0
 GOAL_TOLERANCE_M = 0.5  # the STOP rule's radius (runners.protocol): a trial's ends must lie farther apart
 
 
-class ScenarioError(Exception):
+class ScenarioError(FileProblem):
     """A scenario that cannot be used; ``str(error)`` is the one line to show a user."""
-
-    def __init__(self, file: str | Path, key: str, reason: str) -> None:
-        self.file, self.key, self.reason = str(file), key, reason
-        super().__init__(f"{file}: {key}: {reason}" if key else f"{file}: {reason}")
 
 
 class Strict(BaseModel):

@@ -1,6 +1,6 @@
 """Ground-truth worlds: a free-space raster, the walls around it and the obstacles in it.
 
-Raster convention (shared with ``navtopo.grid_search``): ``free[row, col]``, row ↔ y, col ↔ x, the
+Raster convention (shared with ``navkit.grid_search``): ``free[row, col]``, row ↔ y, col ↔ x, the
 centre of cell (r, c) at ``origin + ((c + 0.5) * res, (r + 0.5) * res)``; ``origin`` is the
 lower-left corner of cell (0, 0).
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from navtopo import grid_search
-from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.geometry import compose, transform_points, wrap_angle
+from navkit import grid_search
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.geometry import compose, transform_points, wrap_angle
 
 L_PATH = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0]])
 

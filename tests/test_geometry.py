@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 
 coordinate = st.floats(-100, 100, allow_nan=False)
 angle = st.floats(-10, 10, allow_nan=False)

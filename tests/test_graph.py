@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
+from navkit.raster import FREE, OCCUPIED
 from navtopo.graph import GraphFormatError, TopologicalGraph
-from navtopo.local_grid import FREE, OCCUPIED, CroppedGrid
+from navtopo.local_grid import CroppedGrid
 
 
 def small_grid(seed: int) -> CroppedGrid:

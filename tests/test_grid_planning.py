@@ -1,4 +1,4 @@
-"""navtopo.grid_planning: the one grid-planning function of the oracle, the baseline, NavTopo's
+"""navkit.grid_planning: the one grid-planning function of the oracle, the baseline, NavTopo's
 local planner and the scenario routes; pinned against the planners' paths before it existed."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ import pytest
 
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.system import MetricGrid, MetricGridConfig
-from navtopo.grid_planning import GridFrame, plan_path
+from navkit.grid_planning import plan_path
+from navkit.raster import GridFrame
 from runners.systems import GroundTruth, SystemContext, get_system
 from scenarios import load_scenario
 

@@ -11,7 +11,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from navtopo import grid_search as gs
+from navkit import grid_search as gs
 
 RES = 0.05
 RADIUS = 0.3

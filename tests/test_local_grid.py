@@ -12,11 +12,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from navtopo.geometry import between, inverse, transform_points
+from navkit.geometry import between, inverse, transform_points
+from navkit.raster import FREE, OCCUPIED, UNKNOWN
+from navkit.scan import obstacle_points
 from navtopo.local_grid import (
-    FREE,
-    OCCUPIED,
-    UNKNOWN,
     CroppedGrid,
     GridConfig,
     cell_to_xy,
@@ -25,7 +24,6 @@ from navtopo.local_grid import (
     grid_from_points,
     known_iou,
     known_overlap,
-    obstacle_points,
     overlap,
     warp,
     warp_window,
@@ -267,7 +265,7 @@ def test_directions_without_returns_stay_unknown():
 
 def test_warp_moves_a_cell_to_where_the_other_frame_sees_it():
     """warp(grid, T) is the grid seen from frame T: a point p of the grid's frame lands at
-    transform_points(inverse(T), p) — the convention of navtopo.geometry."""
+    transform_points(inverse(T), p) — the convention of navkit.geometry."""
     config = GridConfig()
     rng = np.random.default_rng(3)
     for _ in range(50):

@@ -12,7 +12,7 @@ from shapely import contains_xy
 from shapely.geometry import LineString, MultiPoint, box
 from shapely.ops import unary_union
 
-from navtopo.types import Command
+from navkit.types import Command
 from runners.sim import Simulator
 from scenarios import load_scenario
 from scenarios.generators import WALL_M, ring_building

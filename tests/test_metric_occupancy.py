@@ -15,7 +15,7 @@ from baselines.metric_grid.occupancy import (
     wall_mask,
 )
 from baselines.metric_grid.scan2d import free_endpoints, free_ranges, keyframe_scan
-from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN
+from navkit.raster import FREE, OCCUPIED, UNKNOWN
 
 ROOM_POSES = np.array([[1.0, 1.0, 0.3], [3.0, 2.0, 1.0], [5.0, 1.0, 2.5], [2.0, 3.2, -1.0]])
 

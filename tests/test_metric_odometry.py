@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from test_metric_synthetic import World, corridor_world, loop_world, scan
 
-from navtopo import geometry as se2
-from navtopo.odometry import (
+from navkit import geometry as se2
+from navkit.odometry import (
     LidarOdometry,
     OdometryConfig,
     crop_floor_and_ceiling,

@@ -8,7 +8,7 @@ from test_metric_synthetic import World, drifting_odometry, loop_route, loop_wor
 
 from baselines.metric_grid.pose_graph import PoseGraph, PoseGraphConfig
 from baselines.metric_grid.scan2d import keyframe_scan
-from navtopo import geometry as se2
+from navkit import geometry as se2
 
 
 @pytest.fixture(scope="module")

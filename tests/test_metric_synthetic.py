@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 
 WALL_HEIGHT = 2.6
 MOUNT_HEIGHT = 0.6

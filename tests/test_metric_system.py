@@ -15,9 +15,9 @@ from scipy.spatial import cKDTree
 
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.system import MapLoadError, MetricGrid, MetricGridConfig
-from navtopo import geometry as se2
-from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.local_grid import FREE, OCCUPIED
+from navkit import geometry as se2
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.raster import FREE, OCCUPIED
 from runners.navigation import run_one_trial
 from runners.sim import Simulator
 from runners.systems import Status, SystemContext, get_system

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import yaml
 
-from navtopo import geometry as se2
-from navtopo.follower import FollowerConfig, PathFollower
+from navkit import geometry as se2
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.types import Command
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import grid_from_points
 from navtopo.scan_matching import prepare
 from navtopo.system import NavTopo, NavTopoConfig
-from navtopo.types import Command
 from runners.sim import Simulator
 from scenarios import load_scenario
 

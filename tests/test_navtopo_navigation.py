@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
+from navkit.raster import FREE, OCCUPIED, UNKNOWN
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, CroppedGrid, GridConfig, grid_from_points
+from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
 from navtopo.navigation import goal_in_graph
 from navtopo.planning import GlobalPlanner, build_union_grid, path_positions
 from runners.mapping import MappingSystem, run_mapping
@@ -93,8 +94,8 @@ def test_the_union_grid_of_two_locations_lines_up_with_ground_truth(tiny):
 def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_space():
     """One clearance transform a kind serves every radius: each mask is ``inflate_free`` of that
     kind's free cells, and ``fits`` at a point (from the cells round it) is the mask there."""
-    from navtopo.grid_planning import GridFrame
-    from navtopo.grid_search import inflate_free
+    from navkit.grid_search import inflate_free
+    from navkit.raster import GridFrame
     from navtopo.planning import UnionGrid
 
     rng = np.random.default_rng(4)
@@ -306,7 +307,7 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     """Exploring paths are planned in one scan's grid, unknown cells counted free (a door seen at a
     slant), and driving by an unconfirmed hypothesis follows a path in a map that may be another
     place's: in both, returns of a later scan on the way are what the robot would hit."""
-    from navtopo.types import Observation
+    from navkit.types import Observation
     from runners.mapping import context_for
 
     run, _ = tiny_graph
@@ -355,7 +356,7 @@ def test_a_start_up_finds_the_place_that_place_recognition_ranks_last(tiny):
     """Place recognition can rank the right location below its top_k (on a loop scene a look-alike
     29 m away came first and the right one 50th of 62): the start-up verifies every location at its
     first look, and again before it commits, so the right one is found and the drive confirms it."""
-    from navtopo.types import Observation
+    from navkit.types import Observation
 
     a, b = np.array([2.0, 0.0, 0.0]), np.array([6.0, 0.0, 0.0])
     with Simulator(tiny, seed=0) as sim:

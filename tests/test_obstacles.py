@@ -1,10 +1,10 @@
-"""navtopo.obstacles: obstacles the map lacks stay marked until a ray passes them."""
+"""navkit.obstacles: obstacles the map lacks stay marked until a ray passes them."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from navtopo.obstacles import ObstacleMemory
+from navkit.obstacles import ObstacleMemory
 
 
 def _ring(radius: float, count: int = 360) -> np.ndarray:

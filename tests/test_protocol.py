@@ -17,8 +17,8 @@ import pytest
 from pydantic import BaseModel
 from typer.testing import CliRunner
 
-from navtopo import geometry as se2
-from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
+from navkit import geometry as se2
+from navkit.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 from runners.cli import app
 from runners.mapping import MappingSystem, context_for, run_mapping
 from runners.navigation import TrialJob, run_trial_job

@@ -160,7 +160,7 @@ def test_results_and_maps_are_written_with_the_users_umask(tmp_path, umask):
 
     import numpy as np
 
-    from navtopo.files import atomic_write
+    from navkit.files import atomic_write
     from runners.results import write_json, write_tum
 
     old = os.umask(umask)
@@ -534,7 +534,7 @@ def test_the_map_frame_beside_the_estimates_takes_them_into_the_scenario_frame(t
 
     import numpy as np
 
-    from navtopo import geometry as se2
+    from navkit import geometry as se2
     from runners.results import write_map_frame
 
     world_from_map = np.array([3.0, -2.0, np.radians(40.0)])
@@ -566,7 +566,7 @@ def test_scans_with_no_returns_are_mapped_without_error(name):
     """Open space beyond the lidar's range gives scans with no returns: every system maps on."""
     import numpy as np
 
-    from navtopo.types import Observation
+    from navkit.types import Observation
     from runners.systems import SystemContext, get_system
 
     tiny = load_scenario(TINY, with_trials=False)

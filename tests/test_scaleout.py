@@ -22,7 +22,7 @@ import yaml
 from test_robustness import ctrl_c, wait_for
 from typer.testing import CliRunner
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 from runners.cli import app
 from runners.executors import LocalExecutor
 from runners.results import RunDir

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from navtopo.geometry import between, compose, inverse, wrap_angle
+from navkit.geometry import between, compose, inverse, wrap_angle
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from navtopo import geometry as se2
-from navtopo.types import Command
+from navkit import geometry as se2
+from navkit.types import Command
 from runners.sim import Simulator
 from scenarios import load_scenario
 

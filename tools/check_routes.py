@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navtopo.follower import FollowerConfig, PathFollower
+from navkit.follower import FollowerConfig, PathFollower
 from runners.mapping import ROUTE_GOAL_TOLERANCE_M, STUCK_S
 from runners.sim import MAPPING_STREAM, Simulator
 from scenarios import Scenario, bundled_names, load_scenario

@@ -29,8 +29,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo import geometry as se2
-from navtopo.local_grid import FREE, OCCUPIED
+from navkit import geometry as se2
+from navkit.raster import FREE, OCCUPIED
 
 from .occupancy import GridMap
 

@@ -5,13 +5,13 @@ at 0.1 m, with bounds that grow as keyframes arrive. Each keyframe is integrated
 (optimised) pose by the rule NavTopo's location grids use, so the comparison is fair: obstacle
 cells from the points in the shared floor/ceiling band, free cells along the rays to every
 return, stopped at the first occupied cell, with the same gaps filled between neighbouring
-azimuths — the compiled tracer of ``navtopo.local_grid`` does the tracing, in a window of the
+azimuths — the compiled tracer of ``navkit.scan`` does the tracing, in a window of the
 global grid around the keyframe. Each cell is updated at most once per keyframe (hit wins over
 miss), so a wall seen from 40 keyframes is not erased by the many rays that graze it.
 
 Layout: ``cells[row, col]``, ``col`` grows with +x and ``row`` with +y; ``origin`` is the
 world position of the lower-left corner of cell (0, 0) (the ROS map origin). Cell values are
-``navtopo.local_grid``'s: ``UNKNOWN`` 0, ``FREE`` 1, ``OCCUPIED`` 2.
+``navkit.raster``'s: ``UNKNOWN`` 0, ``FREE`` 1, ``OCCUPIED`` 2.
 
 Saved as a ROS map_server map (``map.png`` + ``map.yaml``, mode trinary): occupied 0, free 254,
 unknown 205, row 0 of the image the largest y, ``negate: 0``, ``occupied_thresh: 0.65``,
@@ -30,10 +30,10 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from navtopo import geometry as se2
-from navtopo.files import atomic_write
-from navtopo.local_grid import FREE, OCCUPIED, UNKNOWN, GridConfig
-from navtopo.local_grid import _trace_scan as trace_scan  # the shared compiled tracer
+from navkit import geometry as se2
+from navkit.files import atomic_write
+from navkit.raster import FREE, OCCUPIED, UNKNOWN
+from navkit.scan import MAX_GAP_DEG, trace_scan
 
 from .scan2d import free_endpoints
 
@@ -52,7 +52,7 @@ class OccupancyConfig(BaseModel):
     occupied_prob: float = Field(0.65, description="above: OCCUPIED (ROS map_saver's 65)")
     free_prob: float = Field(0.25, description="below: FREE (ROS map_saver's 25)")
     growth_step: float = Field(5.0, description="m added at a time when the bounds grow")
-    max_gap_deg: float = Field(GridConfig().max_gap_deg, description="as NavTopo's grids: fill between close azimuths")
+    max_gap_deg: float = Field(MAX_GAP_DEG, description="as NavTopo's grids: fill between close azimuths")
 
 
 def _logit(p: float) -> float:

@@ -34,8 +34,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from navtopo import geometry as se2
-from navtopo.odometry import se2_to_se3, se3_to_se2
+from navkit import geometry as se2
+from navkit.odometry import se2_to_se3, se3_to_se2
 
 from .scan2d import voxel_filter_2d
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from navtopo.local_grid import GridConfig, obstacle_points
+from navkit.scan import HeightBand, obstacle_points
 
 AZIMUTH_BINS = 360
 
@@ -58,7 +58,7 @@ def free_endpoints(ranges: ArrayLike) -> NDArray[np.float64]:
 
 def keyframe_scan(
     points: ArrayLike,
-    grid_config: GridConfig | None = None,
+    band: HeightBand | None = None,
     voxel: float = 0.1,
     bins: int = AZIMUTH_BINS,
 ) -> tuple[NDArray[np.float32], NDArray[np.float16]]:
@@ -66,5 +66,5 @@ def keyframe_scan(
     (M, 2) float32 voxel-filtered obstacle points and (bins,) float16 free ranges."""
     p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
     p = p[np.isfinite(p).all(axis=1)]
-    obstacles = voxel_filter_2d(obstacle_points(p, grid_config), voxel)
+    obstacles = voxel_filter_2d(obstacle_points(p, band), voxel)
     return obstacles, free_ranges(p, bins)

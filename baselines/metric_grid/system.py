@@ -3,7 +3,7 @@
 The pipeline the paper compares NavTopo with (RTAB-MAP + Theta*), from well-kept parts. It
 composes the parts of this package and owns no algorithm but the small navigation loop:
 
-mapping      odometry (``navtopo.odometry.LidarOdometry``: wheel, or kiss-icp seeded by the wheels) ->
+mapping      odometry (``navkit.odometry.LidarOdometry``: wheel, or kiss-icp seeded by the wheels) ->
              keyframes and verified loop closures (``pose_graph.PoseGraph``, gtsam) -> at the end,
              batch optimisation and the global 0.1 m log-odds grid traced from every keyframe at
              its optimised pose (``occupancy.OccupancyGrid``); saved as a ROS map_server map
@@ -14,10 +14,10 @@ navigation   as a Nav2 user runs it: the map is loaded and an initial pose given
              nothing there fits (``localization.Relocalizer``), turning in place until it does;
              then odometry composed onto it (the ``map -> odom`` transform) is corrected by
              scan-to-map registration at every scan (``localization.ScanToMap``); Theta*
-             (``navtopo.grid_search``, the compiled kernel NavTopo's local planner uses) on the
+             (``navkit.grid_search``, the compiled kernel NavTopo's local planner uses) on the
              map's free cells eroded by the robot radius plus a margin, unknown cells blocked;
              replanning at a fixed rate and when newly seen obstacles block the path (they stay
-             blocked until the lidar sees through them, ``navtopo.obstacles``); the shared
+             blocked until the lidar sees through them, ``navkit.obstacles``); the shared
              ``PathFollower`` drives and stops at the protocol's stop tolerance.
 
 Memory (``memory()``, the runner's breakdown): ``map`` is the trinary grid as loaded,
@@ -38,14 +38,15 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo import geometry as se2
-from navtopo import grid_search
-from navtopo.follower import FollowerConfig, PathFollower
-from navtopo.grid_planning import GridFrame, plan_path
-from navtopo.local_grid import FREE, OCCUPIED, GridConfig, obstacle_points
-from navtopo.obstacles import ObstacleMemory
-from navtopo.odometry import LidarOdometry, OdometryConfig
-from navtopo.types import Command, MemoryBreakdown, NavStatus, Observation, Status
+from navkit import geometry as se2
+from navkit import grid_search
+from navkit.follower import FollowerConfig, PathFollower
+from navkit.grid_planning import plan_path
+from navkit.obstacles import ObstacleMemory
+from navkit.odometry import LidarOdometry, OdometryConfig
+from navkit.raster import FREE, OCCUPIED, GridFrame
+from navkit.scan import CEILING_HEIGHT, FLOOR_HEIGHT, obstacle_points
+from navkit.types import Command, MemoryBreakdown, NavStatus, Observation, Status
 
 from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMapConfig
 from .occupancy import GridMap, OccupancyConfig, OccupancyGrid
@@ -62,15 +63,12 @@ MANIFEST = "metric_grid.json"
 
 
 class ScanConfig(BaseModel):
-    """The height band whose returns are obstacles: NavTopo's rule (``navtopo.local_grid``)."""
+    """The height band whose returns are obstacles: the shared rule (``navkit.scan``)."""
 
     model_config = ConfigDict(extra="forbid")
 
-    floor_height: float = Field(GridConfig().floor_height, description="m above the floor; lower returns are floor")
-    ceiling_height: float = Field(GridConfig().ceiling_height, description="m above the floor; higher returns are ceiling")
-
-    def grid_config(self) -> GridConfig:
-        return GridConfig(floor_height=self.floor_height, ceiling_height=self.ceiling_height)
+    floor_height: float = Field(FLOOR_HEIGHT, description="m above the floor; lower returns are floor")
+    ceiling_height: float = Field(CEILING_HEIGHT, description="m above the floor; higher returns are ceiling")
 
 
 class PlanningConfig(BaseModel):
@@ -99,7 +97,7 @@ class PlanningConfig(BaseModel):
 #: scene (wall recall 0.33-0.85, the map turned up to 2.5°), so kiss-icp seeded by the wheels; of the
 #: odometry-factor sigmas tried, yaw 0.1° + 0.1°/m with the default xy sigmas had the best worst case
 #: over the four noisy scenes (trees 0.969 mean / 0.919 worst, ring 0.904 wall recall). Since
-#: session 11 the lidar odometry refines kiss-icp point-to-line (``navtopo.odometry``), for both
+#: session 11 the lidar odometry refines kiss-icp point-to-line (``navkit.odometry``), for both
 #: systems: on the same trees wall recall 0.991 mean / 0.986 worst, ATE 0.086 -> 0.021 m mean.
 NOISY_ODOMETRY: dict[str, Any] = {
     "odometry": {"source": "lidar"},
@@ -199,7 +197,7 @@ class MetricGrid:
     def __init__(self, config: MetricGridConfig, context: Any = None) -> None:
         self.config = _for_context(config, context)
         self.robot_radius = float(context.robot.radius) if context is not None else 0.3
-        self.band = self.config.scan.grid_config()
+        self.band = self.config.scan
         self.status = NavStatus()
         # mapping state
         self.odometry: LidarOdometry | None = None
@@ -531,7 +529,7 @@ class MetricGrid:
 
     def _remember_new_obstacles(self, pose: NDArray, points: NDArray) -> None:
         """Mark the returns that the map does not explain (far from every mapped wall); clear the
-        marked ones this scan sees through (``navtopo.obstacles.ObstacleMemory``)."""
+        marked ones this scan sees through (``navkit.obstacles.ObstacleMemory``)."""
         cfg = self.config.planning
         self._latest_new_obstacles = np.zeros((0, 2))
         if self.localizer is None:
@@ -547,11 +545,9 @@ class MetricGrid:
 
     def _path_blocked(self, pose: NDArray) -> bool:
         """Do newly seen obstacles of the latest scan come within the robot radius of the path ahead?"""
-        if not len(self._latest_new_obstacles) or not self.follower.has_path:
-            return False
         cfg = self.config.planning
-        ahead = np.vstack([pose[None, :2], self.follower.path_ahead(cfg.block_check_distance)])
-        return bool(se2.distance_to_polyline(self._latest_new_obstacles, ahead).min() < self.robot_radius + cfg.block_clearance)
+        clearance = self.robot_radius + cfg.block_clearance
+        return self.follower.path_ahead_blocked(self._latest_new_obstacles, pose, clearance, cfg.block_check_distance)
 
     def _timed_plan(self, start_xy: NDArray, goal_xy: NDArray) -> NDArray[np.float64] | None:
         t0 = time.perf_counter()
@@ -565,7 +561,7 @@ class MetricGrid:
         """(K, 2) map-frame path from start to goal (both (2,)), or None.
 
         Theta* on the known free cells eroded by radius + margin; then the radius alone; then, if
-        allowed, with unknown cells counted as free (``navtopo.grid_planning.plan_path``). Newly
+        allowed, with unknown cells counted as free (``navkit.grid_planning.plan_path``). Newly
         seen obstacles are blocked in all.
         """
         assert self.grid_map is not None

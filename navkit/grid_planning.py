@@ -6,11 +6,11 @@ global grid, NavTopo's local planner on its union grid, and the scenario's route
 plus a margin, then by the radius alone, then with unknown cells counted as free); on each it snaps
 the start and the goal to the nearest passable cell within ``snap_cells`` (a robot a few
 centimetres inside an inflated zone still gets a path), searches with Lazy Theta*
-(``navtopo.grid_search``), and returns the first path found as metric points with the exact start
+(``navkit.grid_search``), and returns the first path found as metric points with the exact start
 and goal at its ends. A snapped end cell more than a cell and a half from its exact point stays on
 the path, as the way into the planned free space.
 
-Raster convention (``navtopo.grid_search``): ``mask[row, col]``, row ↔ y, col ↔ x, the centre of
+Raster convention (``navkit.grid_search``): ``mask[row, col]``, row ↔ y, col ↔ x, the centre of
 cell (r, c) at ``origin + ((c + 0.5) * resolution, (r + 0.5) * resolution)``.
 """
 
@@ -22,23 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from navtopo import grid_search
-
-
-@dataclass(frozen=True)
-class GridFrame:
-    """Where a raster lies: ``origin`` (2,) the outer corner of cell (0, 0), metres per cell."""
-
-    origin: NDArray[np.float64]
-    resolution: float
-
-    def to_cell(self, xy: ArrayLike) -> NDArray[np.int64]:
-        """Points (2,) or (N, 2) -> cells [row, col] containing them (no bounds check)."""
-        return grid_search.world_to_cell(xy, self.origin, self.resolution)
-
-    def to_world(self, cells: ArrayLike) -> NDArray[np.float64]:
-        """Cells (2,) or (K, 2) [row, col] -> their centres [x, y]."""
-        return grid_search.cell_to_world(cells, self.origin, self.resolution)
+from navkit import grid_search
+from navkit.raster import GridFrame
 
 
 @dataclass(frozen=True)

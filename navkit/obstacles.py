@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from navtopo.geometry import inverse, transform_points
+from navkit.geometry import inverse, transform_points
 
 BINS = 360
 

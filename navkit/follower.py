@@ -38,8 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo.geometry import wrap_angle
-from navtopo.types import Command
+from navkit.geometry import distance_to_polyline, wrap_angle
+from navkit.types import Command
 
 
 class FollowerConfig(BaseModel):
@@ -174,6 +174,19 @@ class PathFollower:
         end = min(self._progress + distance, self.path_length)
         inner = self._points[(self._arc > self._progress) & (self._arc < end)]
         return np.vstack([self._point_at(self._progress)[None], inner, self._point_at(end)[None]])
+
+    def path_ahead_blocked(self, points: ArrayLike, pose: ArrayLike, clearance: float, distance: float) -> bool:
+        """Does any of ``points`` (N, 2+) come within ``clearance`` of the way ahead: from the robot's
+        position (``pose`` (2+,)) along the path to ``distance`` metres beyond the progress point?
+
+        The rule every system replans by when it sees an obstacle its map lacks (``clearance``: the
+        robot radius plus a margin). No points or no path: False.
+        """
+        points = np.asarray(points, dtype=np.float64)
+        if not len(points) or not self.has_path:
+            return False
+        ahead = np.vstack([np.asarray(pose, dtype=np.float64)[None, :2], self.path_ahead(distance)])
+        return bool(distance_to_polyline(points[:, :2], ahead).min() < clearance)
 
     def at_goal(self, pose: ArrayLike) -> bool:
         """Is the pose (3,) [x, y, yaw] within ``goal_tolerance`` of the last waypoint?"""

@@ -55,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navtopo import geometry as se2
+from navkit import geometry as se2
 
 if TYPE_CHECKING:  # kiss-icp is imported when an odometry is made: NavTopo navigates without it
     from kiss_icp.config import KISSConfig
