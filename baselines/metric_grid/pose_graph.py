@@ -21,10 +21,11 @@ Poses are ``[x, y, yaw]`` in the map frame, which is the odometry frame of the f
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import gtsam
 import numpy as np
@@ -35,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from navkit import geometry as se2
+from navkit.files import atomic_write
 from navkit.odometry import se2_to_se3, se3_to_se2
 
 from .scan2d import voxel_filter_2d
@@ -225,7 +227,7 @@ class PoseGraph:
         """
         odom_pose = np.asarray(odom_pose, dtype=np.float64)
         if self._last_odom is not None:
-            self._travel += se2.distance(self._last_odom, odom_pose)
+            self._travel += float(se2.distance(self._last_odom, odom_pose))
         self._last_odom = odom_pose.copy()
         if not self.needs_keyframe(odom_pose):
             return False
@@ -289,7 +291,7 @@ class PoseGraph:
         far_along = travel <= self.keyframes[k].travel - c.min_travel
         if not far_along.any():
             return []
-        dist = se2.distance(self._estimate[:k], self._estimate[k])
+        dist = np.asarray(se2.distance(self._estimate[:k], self._estimate[k]))
         eligible = np.flatnonzero(far_along & (dist <= c.search_radius))
         ordered = eligible[np.argsort(dist[eligible])]
         chosen: list[int] = []
@@ -408,7 +410,7 @@ class PoseGraph:
         free = np.zeros((len(self.keyframes), bins), np.float16)
         for k, kf in enumerate(self.keyframes):
             free[k, : len(kf.free_ranges)] = kf.free_ranges
-        arrays = {
+        arrays: dict[str, Any] = {
             "odom_poses": np.array([kf.odom_pose for kf in self.keyframes]).reshape(-1, 3),
             "travel": np.array([kf.travel for kf in self.keyframes], dtype=np.float64),
             "point_offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
@@ -419,7 +421,9 @@ class PoseGraph:
             "loop_poses": np.array([lc.pose for lc in self.loops]).reshape(-1, 3),
             "loop_scores": np.array([[lc.fitness, lc.rmse, lc.constraint] for lc in self.loops]).reshape(-1, 3),
         }
-        np.savez(directory / "pose_graph.npz", **arrays)
+        npz = io.BytesIO()  # the bytes np.savez writes to a file, written whole or not at all
+        np.savez(npz, **arrays)
+        atomic_write(directory / "pose_graph.npz", npz.getvalue())
         meta = {
             "format": FORMAT,
             "keyframes": len(self.keyframes),
@@ -427,7 +431,7 @@ class PoseGraph:
             "travel_m": self._travel,
             "config": self.config.model_dump(mode="json"),
         }
-        (directory / "pose_graph.json").write_text(json.dumps(meta, indent=2))
+        atomic_write(directory / "pose_graph.json", json.dumps(meta, indent=2))
 
     @classmethod
     def load(cls, directory: str | Path) -> PoseGraph:
