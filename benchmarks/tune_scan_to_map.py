@@ -40,10 +40,10 @@ import numpy as np
 from _tuning import DEFAULT_CACHE, git_state, parse_list, recording
 from tune_metric_mapping import CANDIDATES, replay
 
+from baselines.metric_grid.config import ScanConfig
 from baselines.metric_grid.localization import ScanToMap, ScanToMapConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.scan2d import voxel_filter_2d
-from baselines.metric_grid.system import ScanConfig
 from navkit import geometry as se2
 from navkit.raster import FREE
 from navkit.scan import obstacle_points

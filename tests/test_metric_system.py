@@ -14,8 +14,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from baselines.metric_grid.occupancy import GridMap
-from baselines.metric_grid.system import MapLoadError, MetricGrid, MetricGridConfig
+from baselines.metric_grid.system import MetricGrid, MetricGridConfig, MetricMapError
 from navkit import geometry as se2
+from navkit.errors import BenchError
 from navkit.follower import FollowerConfig, PathFollower
 from navkit.raster import FREE, OCCUPIED
 from runners.navigation import run_one_trial
@@ -115,10 +116,12 @@ def test_a_damaged_map_folder_fails_with_one_message_naming_the_file(mapped, con
     copy = tmp_path / "map"
     shutil.copytree(directory, copy)
     damage(copy)
-    with pytest.raises(MapLoadError) as error:
+    with pytest.raises(MetricMapError) as error:
         MetricGrid.load(copy, MetricGridConfig(), context)
     message = str(error.value)
     assert named in message and "\n" not in message
+    # an input refused (exit code 2) that callers catching ValueError still catch
+    assert isinstance(error.value, BenchError) and error.value.exit_code == 2 and isinstance(error.value, ValueError)
 
 
 def _densify(path: np.ndarray, step: float = 0.02) -> np.ndarray:
