@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
@@ -106,7 +107,7 @@ class GridMap:
                 raise ValueError("could not encode the map as PNG")
             atomic_write(image_path, data.tobytes())
         else:
-            height, width = image.shape
+            height, width = rows_down.shape[0], rows_down.shape[1]
             header = f"P5\n# navtopo-bench metric_grid, {self.resolution} m/cell\n{width} {height}\n255\n"
             atomic_write(image_path, header.encode("ascii") + rows_down.tobytes())
         meta = {
@@ -166,13 +167,13 @@ def read_image(path: Path) -> NDArray[np.uint8]:
             pixels = np.frombuffer(data, dtype=dtype, count=width * height, offset=pos)
         else:
             pixels = np.array(data[pos:].split()[: width * height], dtype=np.int64)
-        image = pixels.reshape(height, width).astype(np.float64) * (255.0 / maxval)
-        return np.round(image).astype(np.uint8)
+        scaled = pixels.reshape(height, width).astype(np.float64) * (255.0 / maxval)
+        return np.round(scaled).astype(np.uint8)
     # decoded from the bytes read above: OpenCV given a path that is not UTF-8 crashes the process
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
-    if image is None:
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
+    if decoded is None:
         raise ValueError(f"{path}: not an image")
-    return image
+    return cast("NDArray[np.uint8]", decoded)  # IMREAD_GRAYSCALE of a PGM/PNG map: (H, W) uint8
 
 
 def cell_centres(mask: NDArray[np.bool_], origin: ArrayLike, resolution: float) -> NDArray:
@@ -189,7 +190,7 @@ class OccupancyGrid:
         self.config = config or OccupancyConfig()
         self.resolution = self.config.resolution
         self.logodds = np.zeros((0, 0), np.float32)
-        self.origin = np.zeros(2)
+        self.origin: NDArray[np.float64] = np.zeros(2)
         self._cell0 = np.zeros(2, np.int64)  # world cell index of logodds[0, 0]: [row, col]
         self.keyframes = 0
 
@@ -218,6 +219,10 @@ class OccupancyGrid:
         corner_row = int(np.round(pose[1] / res))
         return corner_row - half, corner_col - half, half
 
+    def _corner(self, cell: NDArray[np.int64]) -> NDArray[np.float64]:
+        """World x, y (2,) of the lower-left corner of the global cell ``[row, col]``."""
+        return cast("NDArray[np.float64]", cell[::-1] * self.resolution)
+
     def _ensure(self, row0: int, col0: int, rows: int, cols: int) -> None:
         """Grow the grid so that world cells [row0, row0+rows) x [col0, col0+cols) exist.
 
@@ -230,9 +235,9 @@ class OccupancyGrid:
             top, left = row0 - step, col0 - step
             self.logodds = np.zeros((rows + 2 * step, cols + 2 * step), np.float32)
             self._cell0 = np.array([top, left])
-            self.origin = self._cell0[::-1] * self.resolution
+            self.origin = self._corner(self._cell0)
             return
-        top, left = self._cell0
+        top, left = int(self._cell0[0]), int(self._cell0[1])
         grow_down = max(0, top - row0)
         grow_left = max(0, left - col0)
         grow_up = max(0, (row0 + rows) - (top + height))
@@ -244,7 +249,7 @@ class OccupancyGrid:
             grow_right += step if grow_right else 0
             self.logodds = np.pad(self.logodds, ((grow_down, grow_up), (grow_left, grow_right)))
             self._cell0 = np.array([top - grow_down, left - grow_left])
-            self.origin = self._cell0[::-1] * self.resolution
+            self.origin = self._corner(self._cell0)
 
     def integrate(self, pose: ArrayLike, points: ArrayLike, ranges: ArrayLike) -> None:
         """Add one keyframe. pose: (3,) map frame; points: (M, 2) obstacle points and ranges:
@@ -302,7 +307,7 @@ class OccupancyGrid:
                 r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, cells.shape[0])
                 c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, cells.shape[1])
                 cells = np.ascontiguousarray(cells[r0:r1, c0:c1])
-                origin = (self._cell0[::-1] + [c0, r0]) * self.resolution
+                origin = self._corner(self._cell0 + [r0, c0])
         return GridMap(cells, origin, self.resolution)
 
     @property
