@@ -260,17 +260,26 @@ class PoseGraph:
         yaw = np.deg2rad(c.odometry_sigma_yaw_deg + c.odometry_sigma_yaw_deg_per_m * dist)
         return gtsam.noiseModel.Diagonal.Sigmas(np.array([xy, xy, yaw]))
 
+    def _keyframe_factor(self, k: int) -> gtsam.NonlinearFactor:
+        """Keyframe ``k``'s factor: keyframe 0 anchors the map frame at its odometry pose; each later
+        one is tied to the one before by the odometry between them."""
+        if k == 0:
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
+            return gtsam.PriorFactorPose2(0, _to_pose2(self.keyframes[0].odom_pose), prior)
+        delta = se2.between(self.keyframes[k - 1].odom_pose, self.keyframes[k].odom_pose)
+        return gtsam.BetweenFactorPose2(k - 1, k, _to_pose2(delta), self._odometry_noise(delta))
+
+    def _loop_factor(self, closure: LoopClosure) -> gtsam.NonlinearFactor:
+        return gtsam.BetweenFactorPose2(closure.old, closure.new, _to_pose2(closure.pose), self._loop_noise())
+
     def _add_odometry_factor(self, k: int) -> None:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
+        graph.add(self._keyframe_factor(k))
         if k == 0:
             initial = self.keyframes[0].odom_pose
-            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
-            graph.add(gtsam.PriorFactorPose2(0, _to_pose2(initial), prior))
-        else:
+        else:  # initial values composed from the current estimate, not from raw odometry
             delta = se2.between(self.keyframes[k - 1].odom_pose, self.keyframes[k].odom_pose)
-            graph.add(gtsam.BetweenFactorPose2(k - 1, k, _to_pose2(delta), self._odometry_noise(delta)))
-            # initial values composed from the current estimate, not from raw odometry
             initial = se2.compose(self._estimate[k - 1], delta)
         values.insert(k, _to_pose2(initial))
         self._estimate = np.vstack([self._estimate, initial[None, :]])
@@ -352,7 +361,7 @@ class PoseGraph:
         """Add a loop factor (robust) and, with iSAM2, update the estimate."""
         self.loops.append(closure)
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.BetweenFactorPose2(closure.old, closure.new, _to_pose2(closure.pose), self._loop_noise()))
+        graph.add(self._loop_factor(closure))
         self._graph.push_back(graph)
         if self.config.optimizer == "isam2":
             self._isam.update(graph, gtsam.Values())
@@ -463,18 +472,13 @@ class PoseGraph:
         estimate = arrays["estimate"]
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        for k, kf in enumerate(self.keyframes):
-            if k == 0:
-                prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
-                graph.add(gtsam.PriorFactorPose2(0, _to_pose2(kf.odom_pose), prior))
-            else:
-                delta = se2.between(self.keyframes[k - 1].odom_pose, kf.odom_pose)
-                graph.add(gtsam.BetweenFactorPose2(k - 1, k, _to_pose2(delta), self._odometry_noise(delta)))
+        for k in range(len(self.keyframes)):
+            graph.add(self._keyframe_factor(k))
             values.insert(k, _to_pose2(estimate[k]))
         for (old, new), pose, scores in zip(arrays["loop_pairs"], arrays["loop_poses"], arrays["loop_scores"], strict=True):
             closure = LoopClosure(int(old), int(new), pose.copy(), *(float(v) for v in scores))
             self.loops.append(closure)
-            graph.add(gtsam.BetweenFactorPose2(closure.old, closure.new, _to_pose2(pose), self._loop_noise()))
+            graph.add(self._loop_factor(closure))
         self._graph = graph
         self._estimate = np.asarray(estimate, dtype=np.float64).reshape(-1, 3).copy()
         if self.config.optimizer == "isam2" and self.keyframes:

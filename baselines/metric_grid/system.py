@@ -202,11 +202,8 @@ class MetricGrid:
         """Forget the previous trial: pose, odometry, goal, path, new obstacles, counters."""
         self.tracker.reset()
         self._goal = None
-        self.status = NavStatus()
-        self.planning_ms = []
-        self.follower.clear()
-        self._last_plan_stamp = -np.inf
-        self.obstacles.reset()
+        self._start_over()
+        self.obstacles.reset()  # the latest scan's new obstacles too
         self.plan_counters = dict.fromkeys(self.plan_counters, 0)
 
     def set_initial_pose(self, pose: ArrayLike) -> None:
@@ -219,6 +216,10 @@ class MetricGrid:
         if self.grid_map is None:
             raise RuntimeError("set_goal() needs a loaded map (MetricGrid.load)")
         self._goal = np.asarray(goal, dtype=np.float64).reshape(-1)[:2].copy()
+        self._start_over()
+
+    def _start_over(self) -> None:
+        """What a new goal starts without: a status, plans and their times, a path, remembered obstacles."""
         self.status = NavStatus()
         self.planning_ms = []
         self.follower.clear()
