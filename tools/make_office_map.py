@@ -24,6 +24,8 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from navkit.raster import GridFrame, write_map_server
+
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205  # map_saver's pixel values
 RESOLUTION = 0.05
 SIZE_M = (58.0, 47.0)
@@ -277,9 +279,8 @@ def write_office(out_dir: Path, seed: int = 3) -> Path:
     """Write the map and a scenario on it; returns the scenario file."""
     out_dir.mkdir(parents=True, exist_ok=True)
     image, meta = office_map(seed)
-    if not cv2.imwrite(str(out_dir / meta["image"]), image):
-        raise OSError(f"cannot write {out_dir / meta['image']}")
-    (out_dir / "office.yaml").write_text(yaml.safe_dump(meta, sort_keys=False, default_flow_style=None))
+    frame = GridFrame(np.array(meta["origin"][:2], dtype=np.float64), meta["resolution"])
+    write_map_server(out_dir / "office.yaml", image[::-1], frame, image_format="pgm", thresholds=(0.65, 0.196))
     scenario = out_dir / "office_scenario.yaml"
     scenario.write_text(yaml.safe_dump(scenario_dict(), sort_keys=False, default_flow_style=None))
     return scenario
