@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scenarios.routes import auto_route, polyline_length, route_space, waypoint_route
+from scenarios.route_space import polyline_length, route_space, waypoint_route
+from scenarios.routes import auto_route
 from scenarios.schema import GOAL_TOLERANCE_M, ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
 from scenarios.world import World, build_world, corridor_polygon, rectangle, with_changes
