@@ -26,7 +26,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from navkit.grid_planning import plan_path
-from navkit.raster import GridFrame
 from scenarios.world import World
 
 ROUTE_MARGIN_M = 0.15  # legs keep this much more than the robot radius from walls where they can
@@ -76,17 +75,12 @@ def as_space(world: World, space: RouteSpace | NDArray[np.bool_]) -> RouteSpace:
 # legs planned
 
 
-def _frame(world: World) -> GridFrame:
-    """The world's raster frame (the same cell <-> metre arithmetic as ``World.to_cell``/``to_world``)."""
-    return GridFrame(world.origin, world.resolution)
-
-
 def plan_leg(world: World, tiers: list[NDArray[np.bool_]], a: NDArray, b: NDArray) -> NDArray[np.float64] | None:
     """A shortest path from a to b in the first of ``tiers`` that holds both ends and joins them.
 
     The ends are not snapped: an end outside a tier's mask (or outside the raster) skips that tier.
     """
-    planned = plan_path(tiers, _frame(world), a, b)
+    planned = plan_path(tiers, world.frame, a, b)
     return None if planned is None else planned.points
 
 
