@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from navkit.errors import BenchError
 from runners.commands.console import note
 from runners.commands.errors import Refused
 from runners.executors import ExecutorUnavailable, check_executor
@@ -73,7 +74,6 @@ def check_executor_flags(executor: str, ray_address: str | None, workers: int | 
 def open_scenario(name: str, with_trials: bool = True, quiet: bool = False) -> Scenario:
     """The scenario a command names (a bundled name or a YAML file), its notes printed; a file
     that does not load is its ``ScenarioError``, anything else one line naming the file."""
-    from navkit.errors import BenchError
     from scenarios import load_scenario
 
     try:
