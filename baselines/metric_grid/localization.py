@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import geometry as se2
-from navkit.raster import FREE, OCCUPIED
+from navkit.raster import FREE, OCCUPIED, GridFrame
 
 from .occupancy import GridMap
 
@@ -294,7 +294,7 @@ class Relocalizer:
             step = max(int(round(c.global_step_xy / self.resolution)), 1)
             rows, cols = np.nonzero(self._fits[::step, ::step])
             cells = np.stack([rows * step, cols * step], axis=1)
-            self._global_positions = self.origin + (cells[:, ::-1] + 0.5) * self.resolution
+            self._global_positions = GridFrame(self.origin, self.resolution).to_world(cells)
         positions = self._global_positions
         if not len(positions):
             return None

@@ -6,8 +6,9 @@ A folder holds the navigation map as a ROS map_server map (``map.yaml`` + ``map.
 ``metric_grid.json`` (format, file names, the grid's frame and shape, counts, the resolved config).
 Every file is written whole or not at all (``navkit.files.atomic_write``).
 
-Loading reads the grid only, after checking the manifest, the YAML and the image one by one: a
-folder that cannot be used fails with ``MetricMapError``, one line naming the file.
+Loading reads the grid only, after checking the manifest; the map_server map is checked by its one
+reader (``navkit.raster.read_map_server``). A folder that cannot be used fails with
+``MetricMapError``, one line naming the file (and the key of a bad YAML value).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import yaml
 
 from navkit.errors import FileProblem
 from navkit.files import atomic_write
+from navkit.raster import MapFileError
 
 from .occupancy import GridMap
 from .pose_graph import PoseGraph
@@ -30,11 +32,8 @@ MANIFEST = "metric_grid.json"
 
 
 class MetricMapError(FileProblem, ValueError):
-    """A saved metric map that cannot be loaded: ``file: reason`` (an input refused, exit code 2;
-    a ``ValueError`` too, for callers that catch that)."""
-
-    def __init__(self, file: str | Path, reason: str) -> None:
-        super().__init__(file, "", reason)
+    """A saved metric map that cannot be loaded: ``file: key: reason`` (``file: reason`` without a
+    key); an input refused (exit code 2), and a ``ValueError`` for callers that catch that."""
 
 
 def save_map_folder(directory: Path, grid_map: GridMap, pose_graph: PoseGraph, scans: int, config: dict[str, Any]) -> None:
@@ -60,35 +59,24 @@ def save_map_folder(directory: Path, grid_map: GridMap, pose_graph: PoseGraph, s
 
 
 def load_grid_map(directory: Path) -> GridMap:
-    """The navigation map of a saved folder; ``MetricMapError`` names the first file that fails."""
+    """The navigation map of a saved folder; ``MetricMapError`` names the first file that fails
+    (the manifest here, the map_server map by ``navkit.raster.read_map_server``'s checks)."""
     manifest_path = directory / MANIFEST
     try:
         manifest = json.loads(manifest_path.read_text())
     except FileNotFoundError:
-        raise MetricMapError(manifest_path, "missing (not a metric_grid map folder)") from None
+        raise MetricMapError(manifest_path, "", "missing (not a metric_grid map folder)") from None
     except (OSError, ValueError) as exc:
-        raise MetricMapError(manifest_path, f"unreadable: {exc}") from None
+        raise MetricMapError(manifest_path, "", f"unreadable: {exc}") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
-        raise MetricMapError(manifest_path, f"format is not {FORMAT}")
+        raise MetricMapError(manifest_path, "", f"format is not {FORMAT}")
     yaml_path = directory / str(manifest.get("map", MAP_YAML))
     try:
-        meta = yaml.safe_load(yaml_path.read_text())
-    except FileNotFoundError:
-        raise MetricMapError(yaml_path, "missing") from None
-    except (OSError, ValueError, yaml.YAMLError) as exc:
-        raise MetricMapError(yaml_path, f"unreadable: {str(exc).splitlines()[0]}") from None
-    if not isinstance(meta, dict) or "image" not in meta:
-        raise MetricMapError(yaml_path, "not a map_server map (no 'image' key)")
-    image_path = yaml_path.parent / str(meta["image"])
-    if not image_path.is_file():
-        raise MetricMapError(image_path, f"missing (named by {yaml_path.name})")
-    try:
-        grid_map = GridMap.load(yaml_path)
-    except Exception as exc:  # a truncated or corrupt image, or bad YAML values
-        raise MetricMapError(image_path, f"cannot read the map image: {type(exc).__name__}: {exc}") from None
-    if grid_map.cells.size == 0 or not grid_map.resolution > 0:
-        raise MetricMapError(yaml_path, "empty map or non-positive resolution")
-    return grid_map
+        return GridMap.load(yaml_path)
+    except MapFileError as exc:
+        raise MetricMapError(exc.file, exc.key, exc.reason) from None
+    except Exception as exc:  # noqa: BLE001 - whatever else reading the map raises (an unreadable file)
+        raise MetricMapError(yaml_path, "", f"cannot read the map: {type(exc).__name__}: {exc}") from None
 
 
 def disk_usage(directory: Path) -> dict[str, int]:

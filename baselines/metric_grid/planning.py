@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
 from navkit.grid_planning import PlannedPath, plan_path
-from navkit.raster import FREE, OCCUPIED, GridFrame
+from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 
 from .config import PlanningConfig
 from .occupancy import GridMap
@@ -57,7 +57,7 @@ class GridPlanner:
         None; ``obstacles`` (N, 2) map-frame points whose cells are blocked in every mask."""
         grid = self.grid_map
         snap = int(np.ceil(self.config.snap_radius / grid.resolution))
-        frame = GridFrame(grid.origin, grid.resolution)
+        frame = grid.frame
         blocked = self._blocked_cells(frame, obstacles) if len(obstacles) else None
 
         def mask(level: int) -> NDArray[np.bool_]:
@@ -70,10 +70,8 @@ class GridPlanner:
 
     def _blocked_cells(self, frame: GridFrame, obstacles: NDArray) -> NDArray[np.bool_]:
         """(H, W) the map's cells that hold one of the points (N, 2); points off the map are dropped."""
-        obstacle_cells = frame.to_cell(obstacles)
-        rows, cols = obstacle_cells[:, 0], obstacle_cells[:, 1]
-        height, width = self.grid_map.cells.shape
-        inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+        cells = frame.to_cell(obstacles)
+        on_map = inside(cells, self.grid_map.cells.shape)
         blocked = np.zeros(self.grid_map.cells.shape, bool)
-        blocked[rows[inside], cols[inside]] = True
+        blocked[cells[on_map, 0], cells[on_map, 1]] = True
         return blocked
