@@ -11,10 +11,11 @@ trial is recorded (reason ``error``, or ``out_of_memory`` for a ``MemoryError`` 
 ``--trial-memory-mb``) with a one-line ``detail``, and the next trial runs.
 
 Each trial's record is a ``TrialRecord`` and the worker's figures a ``NavigationReport``
-(``reports.records``). A job (``TrialJob``) carries the scenario's files and the saved map as bytes (``runners.payload``),
-never a path: the worker unpacks them into a temporary folder of its own and yields, per trial, a
-``started`` message (with the trial's wall-clock limit as ``deadline_s``) and a ``trial`` message
-with the record and the trajectories; the driver writes them (``runners.run``).
+(``reports.records``). A job (``TrialJob``) carries the scenario's files and the saved map as
+bytes (``runners.payload``), never a path: the worker unpacks them into a temporary folder of its
+own and yields, per trial, a ``started`` message (with the trial's wall-clock limit as
+``deadline_s``) and a ``trial`` message with the record and the trajectories; the driver writes
+them (``runners.run``).
 """
 
 from __future__ import annotations
