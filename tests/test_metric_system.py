@@ -156,9 +156,9 @@ def test_a_navigation_trial_on_tiny_reaches_the_goal_efficiently(tiny, sim, mapp
     entry = get_system("metric_grid")
     system = MetricGrid.load(directory, MetricGridConfig(), context)
     record, rows, estimate = run_one_trial(tiny, sim, entry, system, tiny.trials[0], 0, 0)
-    assert record["success"], record["reason"]
-    assert record["collisions"] == 0 and record["efficiency"] >= 0.95
-    assert record["planning_ms"]["count"] >= 2  # replanned at the fixed rate
+    assert record.success, record.reason
+    assert record.collisions == 0 and record.efficiency >= 0.95
+    assert record.planning_ms.count >= 2  # replanned at the fixed rate
     # the tracked pose (map frame) follows the true one within 10 cm: registration follows the map,
     # whose far end (seen from few keyframes of this half route) stands ~5 cm off ground truth
     true_in_map = np.array([se2.between(tiny.route_start, row[1:4]) for row in rows])
@@ -242,7 +242,7 @@ def test_an_obstacle_missing_from_the_map_is_seen_and_driven_around(tiny, sim, m
     near_cabinet = (world_path[:, 0] < 11.45 + tiny.spec.robot.radius) & (np.abs(world_path[:, 1] - 3.0) < 0.5)
     assert near_cabinet.any(), "the test needs a first path that runs into the erased cabinet"
     record, _, _ = run_one_trial(tiny, sim, get_system("metric_grid"), system, trial, 0, 0)
-    assert record["success"] and record["collisions"] == 0, record["reason"]
+    assert record.success and record.collisions == 0, record.reason
     assert system.counters["replans_blocked"] >= 1
     assert system.status.state == Status.REACHED
     json.dumps(system.stats())  # stats are plain JSON
