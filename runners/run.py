@@ -157,7 +157,7 @@ class RunHooks:
 
     on_stage: Callable[[str, Any], None] | None = None
     on_mapping: Callable[[float, float], None] | None = None
-    on_trial: Callable[[dict[str, Any]], None] | None = None
+    on_trial: Callable[[TrialRecord], None] | None = None
 
 
 @dataclass
@@ -181,7 +181,7 @@ def execute(
     scenario: Scenario,
     options: RunOptions,
     on_mapping: Callable[[float, float], None] | None = None,
-    on_trial: Callable[[dict[str, Any]], None] | None = None,
+    on_trial: Callable[[TrialRecord], None] | None = None,
     on_stage: Callable[[str, Any], None] | None = None,
     pool: Executor | None = None,
     on_jobs: Callable[[dict[str, int]], None] | None = None,
@@ -364,7 +364,7 @@ def navigate(
     plan: TrialPlan,
     options: RunOptions,
     slots: int,
-    on_trial: Callable[[dict[str, Any]], None] | None,
+    on_trial: Callable[[TrialRecord], None] | None,
     say: Callable[[str, Any], None],
 ) -> Steps:
     """Stage 2 as steps: a system whose mapping failed is a failed stage (no trial of it runs or is
@@ -399,7 +399,7 @@ class NavigationStage:
     recorded since), the trial each job started last, the failed stages."""
 
     def __init__(
-        self, run: RunDir, plan: TrialPlan, options: RunOptions, on_trial: Callable[[dict[str, Any]], None] | None
+        self, run: RunDir, plan: TrialPlan, options: RunOptions, on_trial: Callable[[TrialRecord], None] | None
     ) -> None:
         self.run, self.plan, self.options, self.on_trial = run, plan, options, on_trial
         run.repair_trials()
@@ -452,7 +452,7 @@ class NavigationStage:
         self.done.add((record.system, record.trial))
         self.run.warnings += record.detail is not None
         if self.on_trial:
-            self.on_trial(record.as_json())
+            self.on_trial(record)
 
     def failed(self, system: str, index: int, reason: str, detail: str) -> TrialRecord:
         """The record of a trial its worker did not finish (the worker crashed, or ran out of time)."""
