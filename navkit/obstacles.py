@@ -43,7 +43,7 @@ class ObstacleMemory:
     @property
     def points(self) -> NDArray[np.float64]:
         """(N, 2) the marked points (cell centres) in the planning frame."""
-        return (self._cells + 0.5) * self.resolution
+        return np.asarray((self._cells + 0.5) * self.resolution, dtype=np.float64)
 
     @property
     def nbytes(self) -> int:

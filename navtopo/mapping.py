@@ -139,7 +139,7 @@ class EdgeEstimate:
 def _information(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
     # a floor of a millimetre and a hundredth of a degree: no measurement is exact
     floor = np.diag([1e-6, 1e-6, np.radians(0.01) ** 2])
-    return np.linalg.inv(np.asarray(covariance, dtype=np.float64) + floor)
+    return np.asarray(np.linalg.inv(np.asarray(covariance, dtype=np.float64) + floor), dtype=np.float64)
 
 
 @dataclass

@@ -224,7 +224,7 @@ class UnionGrid:
             )
         return self._wall_distance
 
-    def values_at(self, xy: NDArray, array: NDArray, outside: float | int) -> NDArray:
+    def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
         cells = self.frame.to_cell(xy)
         height, width = array.shape
@@ -401,9 +401,10 @@ def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
 
 
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
-    stamp = np.zeros(union.cells.shape, np.uint8)
+    height, width = union.cells.shape
+    stamp = np.zeros((height, width), np.uint8)
     cells = union.frame.to_cell(xy)
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < stamp.shape[0]) & (cells[:, 1] >= 0) & (cells[:, 1] < stamp.shape[1])
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < height) & (cells[:, 1] >= 0) & (cells[:, 1] < width)
     stamp[cells[inside, 0], cells[inside, 1]] = 1
     return stamp
 

@@ -500,7 +500,7 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
     return np.array([x, y, yaw])
 
 
-def _field(reference: PreparedGrid) -> tuple:
+def _field(reference: PreparedGrid) -> tuple[NDArray[np.float32], int, int, int, float]:
     """The reference's distance field and its crop's placement, as the field functions take them."""
     return reference.distance, reference.row0, reference.col0, reference.half, reference.resolution
 
@@ -512,7 +512,8 @@ def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, co
     fixed: the matches whose rotation is off by a degree are the ones this calls uncertain
     (BENCHMARKS.md, "Edge measurements")."""
     pose = np.asarray(pose, dtype=np.float64)
-    h, _, squares, used = _field_normal_equations(query.occupied_xy, *pose, *_field(reference), config.field_cutoff)
+    x, y, yaw = pose[0], pose[1], pose[2]
+    h, _, squares, used = _field_normal_equations(query.occupied_xy, x, y, yaw, *_field(reference), config.field_cutoff)
     if used <= 3:
         return np.diag([1.0, 1.0, 1.0])  # nothing fixes the pose: a metre and a radian
     variance = max(squares / (used - 3), (0.25 * reference.resolution) ** 2)
