@@ -16,6 +16,7 @@ from __future__ import annotations
 import heapq
 import io
 import json
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -117,8 +118,10 @@ class TopologicalGraph:
 
     # -- search ----------------------------------------------------------------------------------
 
-    def dijkstra(self, source: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """Distances (translation lengths) from ``source`` to every vertex and the predecessors."""
+    def dijkstra(self, source: int, removed: Collection[frozenset[int]] = ()) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Distances (translation lengths) from ``source`` to every vertex and the predecessors (each
+        vertex's next one on the way back to ``source``), over the edges but those in ``removed``
+        (``frozenset((u, v))``: edges found impassable during a trial)."""
         n = len(self.vertices)
         dist = np.full(n, np.inf)
         prev = np.full(n, -1, dtype=np.int64)
@@ -129,6 +132,8 @@ class TopologicalGraph:
             if d > dist[u]:
                 continue
             for v, pose in self._adjacency[u].items():
+                if removed and frozenset((u, v)) in removed:
+                    continue
                 nd = d + float(np.hypot(pose[0], pose[1]))
                 if nd < dist[v]:
                     dist[v] = nd

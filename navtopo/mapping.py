@@ -161,6 +161,13 @@ class MappingCounters:
     reasons: dict[str, int] = field(default_factory=dict)
 
 
+def moved_enough(since: NDArray[np.float64], odom: NDArray[np.float64], config: MappingConfig) -> bool:
+    """The update cadence: ``update_distance`` of motion or ``update_angle_deg`` of turning from the
+    odometry pose ``since`` to ``odom`` (the maintainer's updates and the start-up's looks)."""
+    delta = between(since, odom)
+    return bool(np.hypot(delta[0], delta[1]) >= config.update_distance or abs(delta[2]) >= np.radians(config.update_angle_deg))
+
+
 class GraphMaintainer:
     """Builds the graph online (``mapping=True``) or tracks the robot in a fixed graph."""
 
@@ -215,11 +222,7 @@ class GraphMaintainer:
     def due(self, odom: NDArray[np.float64]) -> bool:
         if self.current is None or self._odom_at_update is None:
             return True
-        delta = between(self._odom_at_update, odom)
-        return bool(
-            np.hypot(delta[0], delta[1]) >= self.config.update_distance
-            or abs(delta[2]) >= np.radians(self.config.update_angle_deg)
-        )
+        return moved_enough(self._odom_at_update, odom, self.config)
 
     # -- the update --------------------------------------------------------------------------------
 

@@ -24,7 +24,6 @@ Frames: a union grid is centred on ``v_cur``'s observation point and axis-aligne
 
 from __future__ import annotations
 
-import heapq
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -107,24 +106,8 @@ class GlobalPlanner:
 
     def _search(self) -> None:
         assert self.goal is not None
-        n = len(self.graph)
-        distance = np.full(n, np.inf)
-        toward = np.full(n, -1, dtype=np.int64)
-        distance[self.goal] = 0.0
-        heap = [(0.0, self.goal)]
-        while heap:
-            d, u = heapq.heappop(heap)
-            if d > distance[u]:
-                continue
-            for v, pose in self.graph.neighbours(u):
-                if frozenset((u, v)) in self.removed:
-                    continue
-                nd = d + float(np.hypot(pose[0], pose[1]))
-                if nd < distance[v]:
-                    distance[v] = nd
-                    toward[v] = u
-                    heapq.heappush(heap, (nd, v))
-        self._distance, self._toward_goal = distance, toward
+        # from the goal: each vertex's predecessor is its next vertex toward the goal
+        self._distance, self._toward_goal = self.graph.dijkstra(self.goal, self.removed)
 
     def path(self, start: int) -> list[int] | None:
         """Vertices from ``start`` to the goal, or None if the goal cannot be reached."""

@@ -46,7 +46,7 @@ from navkit.raster import FREE, OCCUPIED, GridFrame
 from navkit.scan import obstacle_points
 from navkit.types import Command, Observation
 from navtopo.local_grid import GridConfig, grid_from_points
-from navtopo.mapping import GraphMaintainer
+from navtopo.mapping import GraphMaintainer, moved_enough
 from navtopo.planning import LocalPlanner
 from navtopo.scan_matching import PreparedGrid, prepare
 
@@ -153,9 +153,7 @@ class Startup:
     def _due(self, odom: NDArray) -> bool:
         if self._last_look_odom is None:
             return True
-        delta = between(self._last_look_odom, odom)
-        cfg = self.maintainer.config
-        return bool(np.hypot(delta[0], delta[1]) >= cfg.update_distance or abs(delta[2]) >= np.radians(cfg.update_angle_deg))
+        return moved_enough(self._last_look_odom, odom, self.maintainer.config)
 
     def step(
         self, obs: Observation, driven: Hypothesis | None = None, route: list[int] | None = None, force: bool = False
