@@ -81,6 +81,8 @@ class StartupConfig(BaseModel):
 
 @dataclass
 class Hypothesis:
+    """Where the robot may be: a location and the pose in it, tracked by a graph maintainer of its own."""
+
     tracker: GraphMaintainer
     support: int  # looks that verified it
     odometer_start: float  # the robot's odometer when it was found
