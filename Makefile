@@ -48,8 +48,11 @@ test: setup browser
 test-slow: setup
 	$(PY) -m pytest -m slow -q
 
+# ruff (style, imports, complexity at most 15) and mypy on every package, the benchmarks and tools
 lint: setup
 	$(VENV)/bin/ruff check navkit navtopo baselines scenarios runners reports tests benchmarks tools
+	$(VENV)/bin/mypy navkit navtopo baselines scenarios runners reports
+	PYTHONPATH=. $(VENV)/bin/mypy benchmarks tools
 
 clean:
 	rm -rf $(VENV) results .pytest_cache

@@ -96,27 +96,6 @@ def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np
     return squared >= radius_cells * radius_cells - 1e-6
 
 
-def world_to_cell(xy: ArrayLike, origin: ArrayLike, resolution: float) -> NDArray[np.int64]:
-    """World points (2,) or (N, 2) [x, y] -> the cells containing them, (2,) or (N, 2) [row, col].
-
-    Cells may lie outside the grid; check bounds before indexing.
-    """
-    xy = np.asarray(xy, dtype=np.float64)
-    origin = np.asarray(origin, dtype=np.float64)
-    col = np.floor((xy[..., 0] - origin[0]) / resolution)
-    row = np.floor((xy[..., 1] - origin[1]) / resolution)
-    return np.stack([row, col], axis=-1).astype(np.int64)
-
-
-def cell_to_world(cells: ArrayLike, origin: ArrayLike, resolution: float) -> NDArray[np.float64]:
-    """Cells (2,) or (K, 2) [row, col] -> the world positions of their centres, (2,) or (K, 2)."""
-    cells = np.asarray(cells, dtype=np.float64)
-    origin = np.asarray(origin, dtype=np.float64)
-    x = origin[0] + (cells[..., 1] + 0.5) * resolution
-    y = origin[1] + (cells[..., 0] + 0.5) * resolution
-    return np.stack([x, y], axis=-1)
-
-
 def path_length(cells: ArrayLike | None, resolution: float) -> float:
     """Length in metres of a (K, 2) cell path (Euclidean between centres); 0 for K < 2 or None."""
     if cells is None:

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from navkit.geometry import inverse, transform_points
+from navkit.raster import GridFrame
 
 BINS = 360
 
@@ -41,9 +42,14 @@ class ObstacleMemory:
         return len(self._cells)
 
     @property
+    def frame(self) -> GridFrame:
+        """The cells' frame: the planning frame's origin is the corner of cell (0, 0)."""
+        return GridFrame(np.zeros(2), self.resolution)
+
+    @property
     def points(self) -> NDArray[np.float64]:
         """(N, 2) the marked points (cell centres) in the planning frame."""
-        return np.asarray((self._cells + 0.5) * self.resolution, dtype=np.float64)
+        return self.frame.to_world(self._cells[:, ::-1])
 
     @property
     def nbytes(self) -> int:
@@ -63,7 +69,7 @@ class ObstacleMemory:
     def mark(self, xy: NDArray) -> None:
         """Mark points (M, 2+) of the planning frame."""
         if len(xy):
-            cells = np.floor(np.asarray(xy, dtype=np.float64)[:, :2] / self.resolution).astype(np.int64)
+            cells = self.frame.to_cell(np.asarray(xy, dtype=np.float64)[:, :2])[:, ::-1]  # kept as [x, y] cells
             self._cells = np.unique(np.vstack([self._cells, cells]), axis=0)[-self.max_points :]
 
     def _seen_through(self, pose: NDArray, scan_xy: NDArray, max_range: float) -> NDArray[np.bool_]:
@@ -85,4 +91,4 @@ class ObstacleMemory:
         """Re-express the points in a new frame: ``pose`` is the new frame's origin in the old one."""
         if len(self._cells):
             moved = transform_points(inverse(pose), self.points)
-            self._cells = np.unique(np.floor(moved / self.resolution).astype(np.int64), axis=0)
+            self._cells = np.unique(self.frame.to_cell(moved)[:, ::-1], axis=0)

@@ -26,10 +26,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 from matplotlib.transforms import Affine2D  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from navkit.geometry import compose, transform_points  # noqa: E402
+from navkit.raster import FREE, OCCUPIED, GridFrame, MapFileError, read_map_server  # noqa: E402
 from reports.results import GroundTruth, Run, RunFormatError, TrialRecord, read_png  # noqa: E402
 
 DPI = 150
@@ -38,7 +39,6 @@ SVG_METADATA = {"Date": None}
 plt.rcParams["svg.hashsalt"] = "navtopo-bench"
 SYSTEM_COLOURS = {"navtopo": "tab:red", "metric_grid": "tab:blue", "oracle": "tab:green"}
 FALLBACK_COLOURS = ["tab:purple", "tab:orange", "tab:brown", "tab:pink", "tab:olive", "tab:cyan", "tab:gray"]
-GRAPH_OCCUPIED = 2  # navtopo.local_grid cell values: 0 unknown, 1 free, 2 occupied
 
 
 @dataclass
@@ -75,17 +75,6 @@ def save(fig: plt.Figure, folder: Path, name: str) -> list[Path]:
 
 # ---------------------------------------------------------------------------------------------
 # the GT map underneath
-
-
-def compose(a: NDArray, b: NDArray) -> NDArray:
-    """SE(2) a ∘ b for poses [x, y, yaw]."""
-    c, s = np.cos(a[2]), np.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
-
-
-def transform_points(pose: NDArray, xy: NDArray) -> NDArray:
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return np.column_stack([pose[0] + c * xy[:, 0] - s * xy[:, 1], pose[1] + s * xy[:, 0] + c * xy[:, 1]])
 
 
 def draw_ground_truth(ax: plt.Axes, gt: GroundTruth, light: bool = False) -> None:
@@ -178,8 +167,8 @@ def graph_layout(run: Run, system: str) -> GraphLayout:
 
     A location's grid is square, ``size`` cells of ``resolution`` m, centred on the location and
     axis-aligned with it; cell (row, col) of the full grid has its centre at
-    ``((col - size/2 + 0.5) * res, (row - size/2 + 0.5) * res)`` (navtopo/local_grid.py); a saved
-    grid is cropped at ``row0``, ``col0``."""
+    ``((col - size/2 + 0.5) * res, (row - size/2 + 0.5) * res)`` (``navkit.raster.GridFrame.centred``);
+    a saved grid is cropped at ``row0``, ``col0``."""
     map_dir = run.map_dir(system)
     index = map_dir / "graph.json"
     try:
@@ -220,15 +209,8 @@ def graph_layout(run: Run, system: str) -> GraphLayout:
             raise MapFormatError(str(exc)) from None
         size = int(entry.get("size", max(cells.shape)))
         resolution = float(grid_config.get("resolution") or 2.0 * float(grid_config.get("radius", 15.0)) / size)
-        rows, cols = np.nonzero(cells == GRAPH_OCCUPIED)
-        half = size // 2
-        xy = np.column_stack(
-            [
-                (cols + int(entry.get("col0", 0)) - half + 0.5) * resolution,
-                (rows + int(entry.get("row0", 0)) - half + 0.5) * resolution,
-            ]
-        )
-        walls.append(transform_points(pose, xy))
+        grid_frame = GridFrame.centred(size, resolution).shifted(int(entry.get("row0", 0)), int(entry.get("col0", 0)))
+        walls.append(transform_points(pose, grid_frame.centres(cells == OCCUPIED)))
     return GraphLayout(poses, edges, walls, placed_by)
 
 
@@ -283,62 +265,54 @@ def plot_graph_map(run: Run, system: str, folder: Path, name: str | None = None)
 
 @dataclass
 class GridLayer:
-    """A saved map_server grid: ``occupied`` and ``free`` (H, W) in image order (row 0 = the top),
-    ``extent`` (xmin, xmax, ymin, ymax) in the map frame, and ``placement`` carrying map-frame
-    points into the scenario frame (the ROS origin's yaw about the origin, then the map frame's pose)."""
+    """A saved map_server grid: ``cells`` (H, W) UNKNOWN / FREE / OCCUPIED, row 0 the lowest y,
+    placed in the map frame by ``frame``; ``placement`` carries map-frame points into the scenario
+    frame (the map frame's pose)."""
 
-    occupied: NDArray[np.bool_]
-    free: NDArray[np.bool_]
-    resolution: float
-    extent: tuple[float, float, float, float]
+    cells: NDArray[np.uint8]
+    frame: GridFrame
     placement: Affine2D
 
+    @property
+    def occupied(self) -> NDArray[np.bool_]:
+        return self.cells == OCCUPIED
+
+    @property
+    def free(self) -> NDArray[np.bool_]:
+        return self.cells == FREE
+
+    @property
+    def resolution(self) -> float:
+        return self.frame.resolution
+
     def centres(self, mask: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """(N, 2) scenario-frame centres of the cells set in ``mask`` (image order)."""
-        rows, cols = np.nonzero(mask)
-        x0, _, _, y1 = self.extent
-        xy = np.column_stack([x0 + (cols + 0.5) * self.resolution, y1 - (rows + 0.5) * self.resolution])
-        return np.asarray(self.placement.transform(xy), dtype=np.float64).reshape(-1, 2)
+        """(N, 2) scenario-frame centres of the cells set in ``mask`` (rows as ``cells``)."""
+        return np.asarray(self.placement.transform(self.frame.centres(mask)), dtype=np.float64).reshape(-1, 2)
 
 
 def grid_layer(run: Run, system: str) -> GridLayer:
-    """Read ``maps/<system>/map.yaml`` and its image; raises ``MapFormatError``."""
-    map_dir = run.map_dir(system)
+    """Read ``maps/<system>/map.yaml`` and its image (``navkit.raster``); raises ``MapFormatError``."""
     frame = map_frame(run)
     if frame is None:
         raise MapFormatError(f"{system}: the grid lies in the map frame, whose pose needs ground_truth/raster.yaml (missing)")
-    meta_path = map_dir / "map.yaml"
+    meta_path = run.map_dir(system) / "map.yaml"
     try:
-        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
-        image = read_png(map_dir / str(meta["image"]))
-        resolution = float(meta["resolution"])
-        ox, oy, oyaw = (float(v) for v in (list(meta.get("origin", [0.0, 0.0, 0.0])) + [0.0])[:3])
-        negate = int(meta.get("negate", 0))
-        occupied_thresh, free_thresh = float(meta.get("occupied_thresh", 0.65)), float(meta.get("free_thresh", 0.196))
-    except (OSError, ValueError, KeyError, TypeError, yaml.YAMLError, RunFormatError) as exc:
-        raise MapFormatError(f"{meta_path}: not a readable map_server map ({exc})".replace("\n", " ")) from None
-    # map_server: occupancy = (255 - value) / 255 unless negated
-    p = image.astype(np.float64) / 255.0
-    occupancy = p if negate else 1.0 - p
-    h, w = image.shape
-    return GridLayer(
-        occupied=occupancy > occupied_thresh,
-        free=occupancy < free_thresh,
-        resolution=resolution,
-        extent=(ox, ox + w * resolution, oy, oy + h * resolution),
-        placement=Affine2D().rotate_around(ox, oy, oyaw).rotate(frame[2]).translate(frame[0], frame[1]),
-    )
+        ros_map = read_map_server(meta_path)
+    except MapFileError as exc:
+        raise MapFormatError(f"{meta_path}: not a readable map_server map ({exc.reason})".replace("\n", " ")) from None
+    return GridLayer(ros_map.cells, ros_map.frame, Affine2D().rotate(frame[2]).translate(frame[0], frame[1]))
 
 
 def draw_grid_layer(ax: plt.Axes, layer: GridLayer) -> None:
     """Occupied and free cells, placed in the scenario frame, with legend entries."""
-    rgba = np.zeros((*layer.occupied.shape, 4))
+    rgba = np.zeros((*layer.cells.shape, 4))
     rgba[layer.free] = (0.35, 0.6, 0.95, 0.35)
     rgba[layer.occupied] = (0.05, 0.2, 0.75, 0.95)
+    xmin, ymin, xmax, ymax = layer.frame.extent(layer.cells.shape)
     ax.imshow(
         rgba,
-        origin="upper",
-        extent=layer.extent,
+        origin="lower",
+        extent=(xmin, xmax, ymin, ymax),
         interpolation="nearest",
         transform=layer.placement + ax.transData,
         zorder=2,
@@ -354,7 +328,7 @@ def plot_grid_map(run: Run, system: str, folder: Path) -> PlotResult:
     except MapFormatError as exc:
         result.note = str(exc)
         return result
-    h, w = layer.occupied.shape
+    h, w = layer.cells.shape
     fig, ax = map_axes(run.ground_truth, run)
     draw_grid_layer(ax, layer)
     mapping = run.mapping.get(system)

@@ -25,6 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from navkit.raster import GridFrame
 from reports.plots import (  # noqa: E402
     MapFormatError,
     PlotResult,
@@ -235,8 +236,8 @@ def wall_precision(run: Run, system: str) -> float | None:
     distance = distance_transform_edt(~gt.mask("wall", "obstacle")) * resolution  # to the nearest GT wall cell
     x0, _, y0, _ = gt.extent
     h, w = gt.image.shape
-    cols = np.floor((points[:, 0] - x0) / resolution).astype(np.int64)
-    rows = h - 1 - np.floor((points[:, 1] - y0) / resolution).astype(np.int64)
+    rows_up, cols = GridFrame(np.array([x0, y0]), resolution).to_cell(points).T
+    rows = h - 1 - rows_up  # the GT image's row 0 is the top
     inside = (rows >= 0) & (rows < h) & (cols >= 0) & (cols < w)
     near = np.zeros(len(points), dtype=bool)  # outside the raster: beyond every wall, misplaced
     near[inside] = distance[rows[inside], cols[inside]] <= WALL_TOLERANCE_M + 1e-9

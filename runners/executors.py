@@ -55,12 +55,15 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from navkit.errors import BenchError
+
 EXECUTORS = ("local", "ray")
 RAY_INSTALL_HINT = "pip install 'navtopo-bench[ray]' (from a clone: pip install -e '.[ray]')"
 
 
-class ExecutorUnavailable(RuntimeError):
-    pass
+class ExecutorUnavailable(BenchError):
+    """An executor that cannot run (unknown, Ray not installed, no cluster at the address): the
+    command cannot start (one line, exit 2)."""
 
 
 def check_executor(executor: str) -> None:
@@ -148,19 +151,19 @@ class Executor:
                 except queue.Empty:
                     pass
                 for run_id, kind, payload in items:  # everything that arrived, before any deadline
-                    run = self._running.get(run_id)
-                    if run is None:
+                    job = self._running.get(run_id)
+                    if job is None:
                         continue  # the rest of a job already ended (killed on its deadline)
                     if kind == "worker":
-                        run.worker = payload
+                        job.worker = payload
                     elif kind == "message":
-                        run.limit_s = payload.pop("deadline_s", None)
-                        run.deadline = time.monotonic() + run.limit_s if run.limit_s else None
-                        yield Event(run.key, message=payload, worker=run.worker)
+                        job.limit_s = payload.pop("deadline_s", None)
+                        job.deadline = time.monotonic() + job.limit_s if job.limit_s else None
+                        yield Event(job.key, message=payload, worker=job.worker)
                     else:
                         del self._running[run_id]
                         self.counts["failed" if payload is not None else "done"] += 1
-                        yield Event(run.key, done=True, failure=payload, worker=run.worker)
+                        yield Event(job.key, done=True, failure=payload, worker=job.worker)
                 now = time.monotonic()
                 for run in [r for r in self._running.values() if r.deadline is not None and now > r.deadline]:
                     del self._running[run.id]
@@ -391,12 +394,12 @@ class RayExecutor(Executor):
                     _node_ip_address="127.0.0.1",
                     _temp_dir=self._temp_dir,
                     log_to_driver=False,
-                    logging_level="WARNING",
+                    logging_level="WARNING",  # type: ignore[arg-type] # Ray takes a level's name too (its default: "info")
                 )
             else:
                 _probe(address)  # Ray itself waits minutes for an address where nothing listens
-                extra = {"_node_ip_address": "127.0.0.1"} if loopback else {}
-                ray.init(address=address, log_to_driver=False, logging_level="WARNING", **extra)
+                extra: dict[str, Any] = {"_node_ip_address": "127.0.0.1"} if loopback else {}
+                ray.init(address=address, log_to_driver=False, logging_level="WARNING", **extra)  # type: ignore[arg-type]
         except Exception as exc:  # noqa: BLE001 - no cluster to run on: the command cannot start
             self.close()
             where = f"--ray-address {address}: cannot join the Ray cluster" if address else "--executor ray: Ray did not start"
@@ -413,6 +416,7 @@ class RayExecutor(Executor):
 
     def _pump(self, run: _Running) -> None:
         ray = self._ray
+        assert ray is not None  # set before any job starts
         try:
             for number, ref in enumerate(run.handle):
                 self._put(run, "worker" if number == 0 else "message", ray.get(ref))
@@ -427,7 +431,7 @@ class RayExecutor(Executor):
             self._put(run, "end", None)
 
     def _kill(self, run: _Running) -> None:
-        if run.handle is not None:
+        if run.handle is not None and self._ray is not None:
             try:
                 self._ray.cancel(run.handle, force=True)
             except Exception:  # noqa: BLE001 - already finished

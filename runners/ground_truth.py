@@ -22,10 +22,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-import yaml
 
+from navkit.raster import write_map_server
 from runners.results import write_json
 from scenarios import Scenario
 
@@ -37,32 +36,29 @@ VALUES = {"free": 255, "change": 160, "obstacle": 64, "wall": 0}
 FILES = ("raster.png", "raster.yaml", "trials.json", "route.json")
 
 
-def raster_image(scenario: Scenario) -> np.ndarray:
-    """(H, W) uint8 in image order (row 0 = the top of the map) with the cell values of ``VALUES``."""
+def raster_pixels(scenario: Scenario) -> np.ndarray:
+    """(H, W) uint8, row 0 the lowest y (the raster's own order), with the cell values of ``VALUES``."""
     world, navigation = scenario.world, scenario.navigation_world
     image = np.full(world.free.shape, VALUES["wall"], dtype=np.uint8)
     image[world.structure_free] = VALUES["obstacle"]
     image[world.free] = VALUES["change"]
     image[navigation.free] = VALUES["free"]
-    return np.ascontiguousarray(image[::-1])
+    return image
 
 
-def raster_yaml(scenario: Scenario) -> dict[str, Any]:
+def write_raster(scenario: Scenario, folder: Path) -> Path:
+    """``raster.png`` + ``raster.yaml`` (map_server, ``navkit.raster``) with this format's keys."""
     world = scenario.world
-    return {
-        "format": FORMAT,
-        "image": "raster.png",
-        "resolution": float(world.resolution),
-        "origin": [float(world.origin[0]), float(world.origin[1]), 0.0],
-        "negate": 0,
-        "occupied_thresh": 0.65,
-        "free_thresh": 0.196,
+    extra = {
         "frame": "scenario",
         "map_frame": [round(float(v), 9) for v in scenario.route_start],
         "values": dict(VALUES),
         "wall_height": float(world.wall_height),
         "robot_radius": float(scenario.spec.robot.radius),
     }
+    return write_map_server(
+        folder / "raster.yaml", raster_pixels(scenario), world.frame, mode=None, header={"format": FORMAT}, extra=extra
+    )
 
 
 def trials_json(scenario: Scenario, trial_count: int | None) -> dict[str, Any]:
@@ -98,15 +94,7 @@ def write_ground_truth(scenario: Scenario, run_root: Path, trial_count: int | No
     if all((folder / name).is_file() for name in FILES):
         return folder
     folder.mkdir(parents=True, exist_ok=True)
-    ok, png = cv2.imencode(".png", raster_image(scenario))
-    if not ok:
-        raise ValueError("could not encode the ground-truth raster as PNG")
-    tmp = folder / ".raster.png.tmp"
-    tmp.write_bytes(png.tobytes())
-    tmp.replace(folder / "raster.png")
-    tmp = folder / ".raster.yaml.tmp"
-    tmp.write_text(yaml.safe_dump(raster_yaml(scenario), sort_keys=False), encoding="utf-8")
-    tmp.replace(folder / "raster.yaml")
+    write_raster(scenario, folder)
     write_json(folder / "trials.json", trials_json(scenario, trial_count))
     write_json(folder / "route.json", route_json(scenario))
     return folder

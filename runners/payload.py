@@ -72,7 +72,7 @@ def unpack_dir(data: bytes, folder: Path) -> Path:
     def data_with_umask(member: tarfile.TarInfo, path: str) -> tarfile.TarInfo:
         # the "data" filter's checks, but its mode (group write dropped) is not kept: mode None
         # skips the chmod, so a file is as open() and mkdir() make it
-        return tarfile.data_filter(member, path).replace(mode=None, deep=False)
+        return tarfile.data_filter(member, path).replace(mode=None, deep=False)  # type: ignore[arg-type] # None: keep
 
     with tarfile.open(fileobj=io.BytesIO(data), mode="r") as archive:
         archive.extractall(folder, filter=data_with_umask)

@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import yaml
 
+from navkit.errors import BenchError
 from runners.executors import open_executor
 from runners.protocol import TrialProtocol
 from runners.run import RunOptions, RunPlan, execute_runs, in_folder
@@ -33,7 +36,7 @@ from scenarios.world import check_shape_world_size
 
 DEFAULT_LENGTHS = (150, 300, 600, 1200, 2400)
 DEFAULT_SYSTEMS = ("navtopo", "metric_grid")
-GENERATORS = {"lattice": lattice_building, "tree": corridor_tree}
+GENERATORS: dict[str, Callable[..., dict[str, Any]]] = {"lattice": lattice_building, "tree": corridor_tree}
 # runs them all, on one executor: the (scenario, options) of each run to make or resume
 RunAll = Callable[[list[tuple[Scenario, RunOptions]]], None]
 
@@ -57,8 +60,8 @@ class ScalingOptions:
     protocol: TrialProtocol = field(default_factory=TrialProtocol)
 
 
-class SweepError(ValueError):
-    """A sweep that cannot go as asked, found before any run starts (one line)."""
+class SweepError(BenchError):
+    """A sweep that cannot go as asked, found before any run starts (one line, exit 2)."""
 
 
 def scaling_scenario_files(options: ScalingOptions) -> list[Path]:
@@ -116,7 +119,7 @@ def run_scaling(options: ScalingOptions, run_all: RunAll | None = None) -> list[
     every building is generated and checked; returns the run folders."""
     return _run_each(
         [
-            (options.out / f"{round(length)}m", options.setting, lambda path=path: load_scenario(path), path.stem, options.trials)
+            (options.out / f"{round(length)}m", options.setting, partial(load_scenario, path), path.stem, options.trials)
             for length, path in zip(options.lengths, scaling_scenario_files(options), strict=True)
         ],
         options,
@@ -178,7 +181,7 @@ def _check_kept(folder: Path, setting: str | None, name: str, trial_count: int, 
 
 
 def _run_each(
-    runs: list[tuple[Path, str | None, Callable[[], Scenario], str, int]],
+    runs: Sequence[tuple[Path, str | None, Callable[[], Scenario], str, int]],
     options: ScalingOptions | DriftOptions,
     run_all: RunAll | None,
 ) -> list[Path]:

@@ -48,7 +48,7 @@ def dress(
     polygons = [corridor_polygon(c["points"], c["width"]) for c in corridors]
     rooms: list[dict] = []
     obstacles: list[dict] = []
-    taken = []  # footprints already used (keep features apart)
+    taken: list[BaseGeometry] = []  # footprints already used (keep features apart)
     for a, b, width, ci in _segments(corridors):
         direction = b - a
         length = float(np.linalg.norm(direction))
@@ -117,7 +117,8 @@ def dress(
 def grow_tree(total_length: float, rng: np.random.Generator, widths: tuple[float, float] = (1.8, 3.0)) -> list[dict]:
     """Straight corridors at right angles, centre lines totalling ``total_length`` metres."""
     trunk = min(total_length, max(20.0, total_length * 0.35))
-    corridors = [{"points": [[0.0, 0.0], [round(trunk, 3), 0.0]], "width": round(float(rng.uniform(*widths)), 2)}]
+    first = {"points": [[0.0, 0.0], [round(trunk, 3), 0.0]], "width": round(float(rng.uniform(*widths)), 2)}
+    corridors: list[dict[str, Any]] = [first]
     remaining = total_length - trunk
     attempts = 0
     while remaining > 1e-6 and attempts < 5000:

@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from scenarios.routes import auto_route, polyline_length, route_space, waypoint_route
+from scenarios.route_space import RouteSpace, polyline_length, route_space, waypoint_route
+from scenarios.routes import auto_route
 from scenarios.schema import GOAL_TOLERANCE_M, ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
 from scenarios.trials import Trial, generate_trials, make_trial
 from scenarios.world import World, build_world, corridor_polygon, rectangle, with_changes
@@ -189,49 +190,62 @@ def check_connected(spec: ScenarioSpec, path: Path, world: World) -> None:
 
 
 def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> Scenario:
+    """The scenario of a validated file: its world, mapping route and (``with_trials``) trials;
+    ``ScenarioError`` naming the key of anything that cannot be resolved."""
     rng = np.random.default_rng(spec.seed)
     try:
         world = build_world(spec.world, path)
     except ValueError as exc:
         raise ScenarioError(path, "world", str(exc)) from None
     check_connected(spec, path, world)
+    space = route_space(world, spec.robot.radius)
+    route, notes = _mapping_route(spec, path, world, space, rng)
+    if polyline_length(route) < MIN_ROUTE_M:
+        raise ScenarioError(
+            path, "mapping_route", f"the route is {polyline_length(route):.2f} m long: at least {MIN_ROUTE_M} m is needed to map"
+        )
+    scenario = Scenario(spec=spec, path=path, world=world, route=route, notes=notes)
+    scenario.__dict__["passable"] = space.passable
+    if with_trials:
+        _resolve_trials(scenario, space, rng)
+    return scenario
+
+
+def _mapping_route(
+    spec: ScenarioSpec, path: Path, world: World, space: RouteSpace, rng: np.random.Generator
+) -> tuple[NDArray[np.float64], list[str]]:
+    """The mapping route (its waypoints joined, or generated with a seed drawn from ``rng``) and
+    the notes on it."""
     radius = spec.robot.radius
-    space = route_space(world, radius)
-    passable = space.passable
     route_spec = spec.mapping_route
     if route_spec.waypoints is not None:
         for i, point in enumerate(route_spec.waypoints):
-            _check_point(path, f"mapping_route.waypoints.{i}", point, world, passable, radius)
-        route, bad = waypoint_route(world, passable, np.asarray(route_spec.waypoints, float), space.roomy, space.fit)
+            _check_point(path, f"mapping_route.waypoints.{i}", point, world, space.passable, radius)
+        route, bad = waypoint_route(world, space.passable, np.asarray(route_spec.waypoints, float), space.roomy, space.fit)
         if route is None:
             raise ScenarioError(
                 path,
                 f"mapping_route.waypoints.{bad}",
                 f"not connected to waypoint {bad - 1} through free space wide enough for the robot",
             )
-        notes = reroute_notes(world, np.asarray(route_spec.waypoints, float), route, path)
-    else:
-        assert route_spec.auto is not None
-        try:
-            route = auto_route(world, space, route_spec.auto.min_length, np.random.default_rng(rng.integers(2**32)))
-        except ValueError as exc:
-            raise ScenarioError(path, "mapping_route.auto", str(exc)) from None
-        notes = []
-    if polyline_length(route) < MIN_ROUTE_M:
-        raise ScenarioError(
-            path, "mapping_route", f"the route is {polyline_length(route):.2f} m long: at least {MIN_ROUTE_M} m is needed to map"
-        )
-    scenario = Scenario(spec=spec, path=path, world=world, route=route, notes=notes)
-    scenario.__dict__["passable"] = passable
-    if not with_trials:
-        return scenario
-    # trials are resolved in the navigation stage's world (changes in place), reachable from
-    # where the route runs (or, if a change stands there, from the largest piece left)
+        return route, reroute_notes(world, np.asarray(route_spec.waypoints, float), route, path)
+    assert route_spec.auto is not None
+    try:
+        return auto_route(world, space, route_spec.auto.min_length, np.random.default_rng(rng.integers(2**32))), []
+    except ValueError as exc:
+        raise ScenarioError(path, "mapping_route.auto", str(exc)) from None
+
+
+def _resolve_trials(scenario: Scenario, space: RouteSpace, rng: np.random.Generator) -> None:
+    """The scenario's trials, resolved in the navigation stage's world (changes in place),
+    reachable from where the route runs (or, if a change stands there, from the largest piece
+    left); generated ones with a seed drawn from ``rng``."""
+    spec, path, world = scenario.spec, scenario.path, scenario.world
     nav = scenario.navigation_world
-    nav_space = space if nav is world else route_space(nav, radius)
+    nav_space = space if nav is world else route_space(nav, spec.robot.radius)
     nav_passable = nav_space.passable
     scenario.__dict__["navigation_passable"] = nav_passable
-    start_cell = tuple(nav.to_cell(route[0]))
+    start_cell = tuple(nav.to_cell(scenario.route[0]))
     labels, _ = ndimage.label(nav_passable, structure=np.ones((3, 3), bool))
     if nav_passable[start_cell]:
         reachable = labels == labels[start_cell]
@@ -252,28 +266,38 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
         except ValueError as exc:
             raise ScenarioError(path, "trials.generate", f"{exc}{where}") from None
     else:
-        for i, t in enumerate(spec.trials):
-            apart = float(np.hypot(t.goal[0] - t.start[0], t.goal[1] - t.start[1]))
-            if apart <= GOAL_TOLERANCE_M:
-                raise ScenarioError(
-                    path,
-                    f"trials.{i}.goal",
-                    f"{list(t.goal)} is {apart:.2f} m from the start: within the {GOAL_TOLERANCE_M} m goal tolerance, "
-                    "the trial would succeed without moving",
-                )
-            for end, xy in (("start", t.start[:2]), ("goal", t.goal)):
-                _check_point(path, f"trials.{i}.{end}", xy, world, passable, radius)
-                if nav is not world:
-                    _check_point(path, f"trials.{i}.{end}", xy, nav, nav_passable, radius, where)
-            trial = make_trial(nav, reachable, i, t.start, t.goal)
-            if trial is None:
-                raise ScenarioError(
-                    path,
-                    f"trials.{i}",
-                    "start and goal are not connected to the mapping route through free space wide enough for the robot" + where,
-                )
-            scenario.trials.append(trial)
-    return scenario
+        scenario.trials = _listed_trials(scenario, nav_passable, reachable, where)
+
+
+def _listed_trials(scenario: Scenario, nav_passable: NDArray[np.bool_], reachable: NDArray[np.bool_], where: str) -> list[Trial]:
+    """The trials the file lists, each end checked in the mapping and the navigation world."""
+    spec, path, world, nav = scenario.spec, scenario.path, scenario.world, scenario.navigation_world
+    assert not isinstance(spec.trials, TrialsGenerate)
+    radius = spec.robot.radius
+    passable = scenario.passable
+    trials = []
+    for i, t in enumerate(spec.trials):
+        apart = float(np.hypot(t.goal[0] - t.start[0], t.goal[1] - t.start[1]))
+        if apart <= GOAL_TOLERANCE_M:
+            raise ScenarioError(
+                path,
+                f"trials.{i}.goal",
+                f"{list(t.goal)} is {apart:.2f} m from the start: within the {GOAL_TOLERANCE_M} m goal tolerance, "
+                "the trial would succeed without moving",
+            )
+        for end, xy in (("start", t.start[:2]), ("goal", t.goal)):
+            _check_point(path, f"trials.{i}.{end}", xy, world, passable, radius)
+            if nav is not world:
+                _check_point(path, f"trials.{i}.{end}", xy, nav, nav_passable, radius, where)
+        trial = make_trial(nav, reachable, i, t.start, t.goal)
+        if trial is None:
+            raise ScenarioError(
+                path,
+                f"trials.{i}",
+                "start and goal are not connected to the mapping route through free space wide enough for the robot" + where,
+            )
+        trials.append(trial)
+    return trials
 
 
 def load_scenario(name_or_path: str | Path, with_trials: bool = True) -> Scenario:

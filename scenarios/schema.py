@@ -6,6 +6,7 @@ the key and the reason, e.g. ``bad.yaml: world.corridors.0.width: must be > 0 (g
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -198,7 +199,7 @@ def _key(loc: tuple[Any, ...]) -> str:
     return ".".join(parts) or "(top level)"
 
 
-def _reason(error: dict[str, Any]) -> str:
+def _reason(error: Mapping[str, Any]) -> str:
     msg = str(error["msg"])
     msg = msg.removeprefix("Value error, ")
     if error["type"] == "extra_forbidden":

@@ -4,7 +4,9 @@ PyBullet's and ROS's users write numbers as they would in Python: ``1e-3``, ``2E
 which PyYAML implements, reads a number without a dot (``1e-3``) as a *string*; this loader
 reads every YAML 1.2 float (``1e-300``, ``1e308``, ``.5``, ``-2.5E+3``) as a float. A key given
 twice in one mapping is an error (YAML says keys are unique; PyYAML silently keeps the last).
-Every problem comes back as one ``YamlProblem`` with the line it is on.
+Every problem comes back as one ``YamlProblem`` with the line it is on: an expected failure
+(``navkit.errors.BenchError``, an input refused); readers that know the file turn it into a
+``FileProblem`` naming it (``scenarios.schema.read_yaml``).
 """
 
 from __future__ import annotations
@@ -15,12 +17,15 @@ from typing import Any
 
 import yaml
 
+from navkit.errors import BenchError
+
 # YAML 1.2 core schema floats that YAML 1.1 reads as strings (no dot, or a dot with a bare exponent)
 _FLOAT_12 = re.compile(r"^[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)$")
 
 
-class YamlProblem(ValueError):
-    """Not usable YAML: ``line`` (1-based, or None) and ``reason`` (one line)."""
+class YamlProblem(BenchError, ValueError):
+    """Not usable YAML: ``line`` (1-based, or None) and ``reason`` (one line). Still a ``ValueError``
+    for callers that catch that."""
 
     def __init__(self, reason: str, line: int | None = None) -> None:
         self.reason, self.line = reason, line

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from scenarios.routes import polyline_length, shortest_path
+from scenarios.route_space import polyline_length, shortest_path
 from scenarios.schema import GOAL_TOLERANCE_M
 from scenarios.world import World
 

@@ -20,9 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
-import cv2
 import numpy as np
 import shapely
 from numpy.typing import NDArray
@@ -31,6 +29,8 @@ from shapely import affinity
 from shapely.geometry import LinearRing, LineString, MultiPolygon, Polygon, box
 from shapely.ops import unary_union
 
+from navkit import raster
+from navkit.raster import GridFrame
 from scenarios.schema import MAX_RASTER_CELLS, ObstacleSpec, ScenarioError, WorldSpec, read_yaml
 
 PADDING_M = 1.0  # wall margin around the free space in a shape world's raster
@@ -102,19 +102,21 @@ class World:
         """Cells where a disc of ``radius`` centred on the cell centre stays in free space."""
         return self.clearance >= radius
 
+    @property
+    def frame(self) -> GridFrame:
+        """The raster's placement (``navkit.raster``: the one cell <-> metre conversion)."""
+        return GridFrame(self.origin, self.resolution)
+
     def to_cell(self, xy: NDArray | tuple[float, float]) -> NDArray[np.int64]:
-        xy = np.asarray(xy, dtype=np.float64)
-        rc = np.floor((xy[..., ::-1] - self.origin[::-1]) / self.resolution).astype(np.int64)
-        return rc
+        """Points (..., 2) [x, y] -> cells (..., 2) [row, col] (``GridFrame.to_cell``)."""
+        return self.frame.to_cell(xy)
 
     def to_world(self, cells: NDArray) -> NDArray[np.float64]:
-        cells = np.asarray(cells, dtype=np.float64)
-        return self.origin + (cells[..., ::-1] + 0.5) * self.resolution
+        """Cells (..., 2) [row, col] -> their centres (..., 2) [x, y] (``GridFrame.to_world``)."""
+        return self.frame.to_world(cells)
 
     def inside(self, cells: NDArray) -> NDArray[np.bool_]:
-        cells = np.asarray(cells)
-        h, w = self.free.shape
-        return (cells[..., 0] >= 0) & (cells[..., 0] < h) & (cells[..., 1] >= 0) & (cells[..., 1] < w)
+        return raster.inside(cells, self.free.shape)
 
     def clearance_at(self, xy: NDArray | tuple[float, float]) -> float:
         """Clearance at a point (bilinear in the clearance raster; 0 outside the raster)."""
@@ -230,103 +232,22 @@ def shape_world(spec: WorldSpec) -> World:
 def read_ros_map(
     yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml"
 ) -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
-    """Free cells (row 0 = lowest y), origin and resolution of a map_server map."""
+    """Free cells (row 0 = lowest y), origin and resolution of a map_server map (``navkit.raster``,
+    read as strictly as a scenario file; a map too large for this machine is refused before its
+    image is decoded)."""
     if yaml_path.is_dir():
         raise ScenarioError(scenario_file, key, f"{yaml_path} is a folder, not a map_server YAML file")
     if not yaml_path.is_file():
         raise ScenarioError(scenario_file, key, f"map file {yaml_path} not found")
-    meta = read_yaml(yaml_path)
-    if not isinstance(meta, dict):
-        raise ScenarioError(yaml_path, "", "not a map_server YAML mapping")
-    for required in ("image", "resolution", "origin"):
-        if required not in meta:
-            raise ScenarioError(yaml_path, required, "required key is missing")
-    mode = meta.get("mode", "trinary")
-    if mode not in ("trinary", "scale", "raw"):
-        raise ScenarioError(yaml_path, "mode", f"unknown mode {mode!r}")
 
-    def number(key: str, value: Any) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-            raise ScenarioError(yaml_path, key, f"must be a finite number (got {value!r})")
-        return float(value)
+    def check_size(shape: tuple[int, int], resolution: float, image: Path) -> None:
+        check_raster_size(shape, resolution, f"map image {image.name}")
 
-    origin = meta["origin"]
-    if not (isinstance(origin, list) and len(origin) == 3):
-        raise ScenarioError(yaml_path, "origin", "must be [x, y, yaw]")
-    origin = [number(f"origin.{i}", v) for i, v in enumerate(origin)]
-    if abs(origin[2]) > 1e-9:
-        raise ScenarioError(yaml_path, "origin", "a rotated map origin (yaw != 0) is not supported")
-    resolution = number("resolution", meta["resolution"])
-    if resolution <= 0:
-        raise ScenarioError(yaml_path, "resolution", f"must be > 0 (got {resolution})")
-    negate = meta.get("negate", 0)
-    if negate not in (0, 1, True, False):
-        raise ScenarioError(yaml_path, "negate", f"must be 0 or 1 (got {negate!r})")
-    defaults = {"free_thresh": 0.196, "occupied_thresh": 0.65}  # map_server's
-    thresholds = {key: number(key, meta.get(key, default)) for key, default in defaults.items()}
-    for key, value in thresholds.items():
-        if not 0.0 <= value <= 1.0:
-            raise ScenarioError(yaml_path, key, f"must be between 0 and 1, a share of full intensity (got {value})")
-    free_thresh = thresholds["free_thresh"]
-    if free_thresh >= thresholds["occupied_thresh"]:
-        raise ScenarioError(
-            yaml_path, "free_thresh", f"{free_thresh} is not below occupied_thresh {thresholds['occupied_thresh']}"
-        )
-    image_path = (yaml_path.parent / str(meta["image"])).resolve()
-    if image_path.is_dir():
-        raise ScenarioError(yaml_path, "image", f"{meta['image']} is a folder, not a map image")
-    if not image_path.is_file():
-        raise ScenarioError(yaml_path, "image", f"map image {image_path.name} not found next to {yaml_path.name}")
-    size = image_size(image_path)  # from the header, before decoding; None: a format Pillow does not read
     try:
-        if size is not None:
-            check_raster_size((size[1], size[0]), resolution, f"map image {image_path.name}")
-        image = read_image_quietly(image_path)
-        if image is None or image.size == 0:
-            raise ScenarioError(yaml_path, "image", f"cannot decode map image {image_path.name}")
-        check_raster_size(image.shape[:2], resolution, f"map image {image_path.name}")
-    except ValueError as exc:
-        raise ScenarioError(yaml_path, "image", str(exc)) from None
-    if image.ndim == 3:
-        image = image[..., :3].mean(axis=2)
-    scale = 65535.0 if image.dtype == np.uint16 else 255.0
-    image = image.astype(np.float64)
-    if mode == "raw":
-        free = image == 0
-    else:
-        p = image / scale if negate else (scale - image) / scale
-        free = p <= free_thresh
-    free = free[::-1].copy()  # image row 0 is the largest y
-    return free, np.array([origin[0], origin[1]]), resolution
-
-
-def read_image_quietly(path: Path) -> NDArray | None:
-    """The image (unchanged: depth and channels as stored), None for a file OpenCV cannot decode,
-    without OpenCV's own lines on stderr (a truncated PGM prints three): the caller says why.
-    Decoded from its bytes: ``cv2.imread`` of a path that is not UTF-8 crashes the process."""
-    logging = cv2.utils.logging
-    level = logging.getLogLevel()
-    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
-    try:
-        data = np.fromfile(path, np.uint8)
-        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    finally:
-        logging.setLogLevel(level)
-
-
-def image_size(path: Path) -> tuple[int, int] | None:
-    """(width, height) of an image from its header, without decoding it; None if unreadable."""
-    from PIL import Image
-
-    limit = Image.MAX_IMAGE_PIXELS
-    Image.MAX_IMAGE_PIXELS = None  # the size is checked by ``check_raster_size``, with a reason
-    try:
-        with Image.open(path) as image:
-            return image.size
-    except Exception:  # noqa: BLE001 - any file Pillow cannot identify
-        return None
-    finally:
-        Image.MAX_IMAGE_PIXELS = limit
+        ros_map = raster.read_map_server(yaml_path, check_size=check_size, read_yaml=read_yaml)
+    except raster.MapFileError as exc:
+        raise ScenarioError(exc.file, exc.key, exc.reason) from None
+    return ros_map.cells == raster.FREE, ros_map.frame.origin, ros_map.frame.resolution
 
 
 def largest_component(free: NDArray[np.bool_]) -> NDArray[np.bool_]:

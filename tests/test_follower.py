@@ -11,6 +11,7 @@ from pydantic import ValidationError
 from navkit import grid_search
 from navkit.follower import FollowerConfig, PathFollower
 from navkit.geometry import compose, transform_points, wrap_angle
+from navkit.raster import GridFrame
 
 L_PATH = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0]])
 
@@ -92,12 +93,9 @@ def test_following_a_theta_star_path_around_a_wall_keeps_clear_of_it():
     room = ~((x > 5.9) & (x < 6.1) & (y < 5.5))
     free = grid_search.inflate_free(room, radius, resolution)
     start, goal = np.array([3.0, 1.0, 0.0]), np.array([9.0, 1.0])
-    cells = grid_search.theta_star(
-        free,
-        grid_search.world_to_cell(start[:2], (0.0, 0.0), resolution),
-        grid_search.world_to_cell(goal, (0.0, 0.0), resolution),
-    )
-    path = grid_search.cell_to_world(cells, (0.0, 0.0), resolution)
+    frame = GridFrame(np.zeros(2), resolution)
+    cells = grid_search.theta_star(free, frame.to_cell(start[:2]), frame.to_cell(goal))
+    path = frame.to_world(cells)
     path[-1] = goal  # the planner's last vertex is the goal's cell centre: end on the goal itself
 
     follower = PathFollower()

@@ -12,6 +12,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from navkit import grid_search as gs
+from navkit.raster import GridFrame
 
 RES = 0.05
 RADIUS = 0.3
@@ -67,19 +68,6 @@ def segment_samples(cells: np.ndarray, step: float = 0.2) -> np.ndarray:
 
 
 # --- coordinates -----------------------------------------------------------------------------
-
-
-def test_cell_centre_convention_round_trips():
-    origin = np.array([-1.0, 3.0])
-    assert np.allclose(gs.cell_to_world((2, 5), origin, 0.1), [-1.0 + 0.55, 3.0 + 0.25])
-    cells = np.array([[0, 0], [2, 5], [7, 1]])
-    world = gs.cell_to_world(cells, origin, 0.1)
-    assert world.shape == (3, 2) and world.dtype == np.float64
-    back = gs.world_to_cell(world, origin, 0.1)
-    assert back.dtype == np.int64 and np.array_equal(back, cells)
-    # a point just inside a cell's lower-left corner belongs to that cell
-    assert np.array_equal(gs.world_to_cell([-1.0 + 1e-9, 3.0 + 1e-9], origin, 0.1), [0, 0])
-    assert np.array_equal(gs.world_to_cell([-1.05, 2.95], origin, 0.1), [-1, -1])
 
 
 def test_path_length_is_euclidean_between_centres():
@@ -170,7 +158,7 @@ def test_theta_star_matches_the_exact_shortest_path_around_a_wall(room, start, g
     path = gs.theta_star(free, start, goal)
     assert path is not None and path.dtype == np.int64 and path.shape[1] == 2
     assert tuple(path[0]) == start and tuple(path[-1]) == goal
-    start_xy, goal_xy = gs.cell_to_world(np.array([start, goal]), (0.0, 0.0), RES)
+    start_xy, goal_xy = GridFrame(np.zeros(2), RES).to_world(np.array([start, goal]))
     exact = around_wall_end(start_xy, goal_xy)
     assert gs.path_length(path, RES) == pytest.approx(exact, rel=0.01)
     assert all(gs.line_of_sight(free, a, b) for a, b in zip(path[:-1], path[1:], strict=True))

@@ -207,9 +207,9 @@ def test_a_grid_map_is_placed_by_the_map_frame(crafted):
     layer = grid_layer(Run.load(crafted), "metric_grid")
     assert layer.centres(layer.occupied) == pytest.approx(np.array([[0.05, 0.45]]))
     assert layer.free.sum() == 99
-    # the grid's lower-left cell: (-0.45, -0.45) in the map frame -> (0.5 + 0.45, -0.45)
+    # the grid's lower-left cell (row 0: the lowest y): (-0.45, -0.45) in the map frame -> (0.5 + 0.45, -0.45)
     corner = np.zeros_like(layer.free)
-    corner[-1, 0] = True
+    corner[0, 0] = True
     assert layer.centres(corner) == pytest.approx(np.array([[0.95, -0.45]]))
 
 

@@ -22,7 +22,7 @@ import yaml
 from shapely.geometry import LineString
 
 from scenarios.generators import ring_building
-from scenarios.routes import route_space
+from scenarios.route_space import route_space
 from scenarios.scenario import build_scenario
 from scenarios.schema import parse_spec
 from scenarios.trials import make_trial

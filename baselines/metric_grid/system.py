@@ -570,7 +570,7 @@ class MetricGrid:
         obstacles = self._recent_obstacles()
         blocked = None
         if len(obstacles):
-            obstacle_cells = grid_search.world_to_cell(obstacles, grid.origin, grid.resolution)
+            obstacle_cells = GridFrame(grid.origin, grid.resolution).to_cell(obstacles)
             rows, cols = obstacle_cells[:, 0], obstacle_cells[:, 1]
             height, width = grid.cells.shape
             inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
