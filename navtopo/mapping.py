@@ -47,7 +47,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from navkit.geometry import between, compose, compose_with_covariance, inverse_with_covariance, wrap_angle
 from navkit.raster import UNKNOWN
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
+from navtopo.local_grid import CroppedGrid, GridConfig, grid_frame, grid_from_points, overlap
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
 
@@ -343,7 +343,7 @@ class GraphMaintainer:
     def _sees(self, vertex: int, pose: NDArray[np.float64]) -> bool:
         """Did ``vertex``'s scan see the cell at ``pose`` (its frame)?"""
         vertex_grid = self.grids.get(vertex).grid
-        row, col = xy_to_cell(np.asarray(pose, dtype=np.float64)[None, :2], self.grid_config)[0]
+        row, col = grid_frame(self.grid_config).to_cell(np.asarray(pose, dtype=np.float64)[None, :2])[0]
         size = vertex_grid.shape[0]
         return bool(0 <= row < size and 0 <= col < size and vertex_grid[row, col] != UNKNOWN)
 

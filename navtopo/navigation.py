@@ -37,7 +37,7 @@ from navkit.scan import obstacle_points
 from navkit.types import Command, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
-from navtopo.local_grid import GridConfig, grid_from_points, xy_to_cell
+from navtopo.local_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.mapping import GraphMaintainer
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
 from navtopo.scan_matching import prepare
@@ -64,11 +64,12 @@ def goal_in_graph(
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
     if poses is None:
         poses = np.array([vertex.pose_hint for vertex in graph.vertices])
+    frame = grid_frame(grid_config)
     best, best_free = None, None
     for v, vertex in enumerate(graph.vertices):
         local = transform_points(inverse(poses[v]), goal_xy[None])[0]
         distance = float(np.hypot(local[0], local[1]))
-        row, col = xy_to_cell(local[None], grid_config)[0] - (vertex.grid.row0, vertex.grid.col0)
+        row, col = frame.to_cell(local[None])[0] - (vertex.grid.row0, vertex.grid.col0)
         cells = vertex.grid.cells
         free = 0 <= row < cells.shape[0] and 0 <= col < cells.shape[1] and cells[row, col] == FREE
         if best is None or distance < best[0]:

@@ -37,7 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from navkit import grid_search
 from navkit.geometry import compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, plan_path
-from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import GridConfig, warp_window, warped_bounds
 
@@ -210,10 +210,9 @@ class UnionGrid:
     def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
         cells = self.frame.to_cell(xy)
-        height, width = array.shape
-        inside = (cells[:, 0] >= 0) & (cells[:, 0] < height) & (cells[:, 1] >= 0) & (cells[:, 1] < width)
+        on_grid = inside(cells, array.shape)
         out = np.full(len(cells), outside, dtype=array.dtype)
-        out[inside] = array[cells[inside, 0], cells[inside, 1]]
+        out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
         return out
 
     @property
@@ -384,11 +383,10 @@ def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
 
 
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
-    height, width = union.cells.shape
-    stamp = np.zeros((height, width), np.uint8)
+    stamp = np.zeros(union.cells.shape, np.uint8)
     cells = union.frame.to_cell(xy)
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < height) & (cells[:, 1] >= 0) & (cells[:, 1] < width)
-    stamp[cells[inside, 0], cells[inside, 1]] = 1
+    on_grid = inside(cells, stamp.shape)
+    stamp[cells[on_grid, 0], cells[on_grid, 1]] = 1
     return stamp
 
 

@@ -42,7 +42,7 @@ from navkit.follower import PathFollower
 from navkit.geometry import between, compose, distance_to_polyline, transform_points
 from navkit.grid_planning import plan_path
 from navkit.grid_search import inflate_free
-from navkit.raster import FREE, OCCUPIED, GridFrame
+from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 from navkit.scan import obstacle_points
 from navkit.types import Command, Observation
 from navtopo.local_grid import GridConfig, grid_from_points
@@ -361,6 +361,9 @@ class Explorer:
         way out of a room leads through its door, not round the room again), forward first on ties."""
         grid_config = self.grid_config
         grid = grid_from_points(obs.points, grid_config)
+        # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
+        # moves have always been planned: not grid_frame's floor(x / res) + half, which can differ by
+        # a cell at a cell's edge
         frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
         # the local planner's fallbacks: with its margin, then the robot's radius alone (a narrow
         # door); in the scan's free space, then between the walls it saw (a door seen at a slant
@@ -376,8 +379,8 @@ class Explorer:
         directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
         ends = np.vstack([directions * reach * scale for scale in (2.0, 1.0, 0.5)])
         cells = frame.to_cell(ends)
-        inside = np.all((cells >= 0) & (cells < passable.shape), axis=1)
-        ok = np.flatnonzero(inside)[passable[cells[inside, 0], cells[inside, 1]]]
+        on_grid = inside(cells, passable.shape)
+        ok = np.flatnonzero(on_grid)[passable[cells[on_grid, 0], cells[on_grid, 1]]]
         if not len(ok):
             return None
         trail = np.array(self.trail) if self.trail else np.zeros((0, 2))

@@ -345,8 +345,8 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
 def _startup(graph: TopologicalGraph, describe, **config):
     from navtopo.localization import LocalizationConfig
     from navtopo.mapping import GraphMaintainer, MappingConfig
-    from navtopo.startup import Startup, StartupConfig
     from navtopo.scan_matching import MatchingConfig
+    from navtopo.startup import Startup, StartupConfig
 
     maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
     return Startup(maintainer, describe, StartupConfig(**config))
