@@ -248,6 +248,8 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
     r1 = min(window[0] + known_rows[-1] + 3, size) - window[0]
     c0 = max(window[2] + known_cols[0] - 2, 0) - window[2]
     c1 = min(window[2] + known_cols[-1] + 3, size) - window[2]
+    # the corner of the kept part's first cell on the canvas centred on the vertex's observation point;
+    # a map-style frame from there (floor((x - origin) / res)), as the union grids have always been read
     origin = np.array([(window[2] + c0 - size // 2) * res, (window[0] + r0 - size // 2) * res])
     return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res))
 
