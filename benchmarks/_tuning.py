@@ -11,7 +11,7 @@ Settings, as the benchmark defines them:
 * ``noisy``: wheel odometry with 2 % / 0.5°-per-metre random walks and 0.01 m lidar range noise.
 
 A recorded drive is what ``runners.mapping.run_mapping`` feeds every system: the robot follows
-the scenario's mapping route on its true pose (the shared ``PathFollower``), the simulator's
+the scenario's mapping route on its true pose (``runners.route.RouteDrive``), the simulator's
 noise comes from the scenario seed's mapping stream, and each tick's ``Observation`` (stamp,
 float32 points, odometry) is stored with the true pose, in an ``.npz`` under a cache folder
 (``data/`` is gitignored).
@@ -32,10 +32,9 @@ import yaml
 from numpy.typing import NDArray
 
 from navkit import geometry as se2
-from navkit.follower import FollowerConfig, PathFollower
 from navkit.types import Observation
-from runners.mapping import ROUTE_GOAL_TOLERANCE_M, STUCK_S
-from runners.sim import MAPPING_STREAM, Simulator
+from runners.route import RouteDrive
+from runners.sim import Simulator
 from scenarios import Scenario, generators
 from scenarios.scenario import build_scenario
 from scenarios.schema import parse_spec
@@ -136,37 +135,23 @@ class Recording:
 
 
 def record_drive(scenario: Scenario, seed: int, progress: bool = True) -> Recording:
-    """Drive the scenario's mapping route as ``runners.mapping.run_mapping`` does, recording every tick."""
-    robot = scenario.spec.robot
+    """Drive the scenario's mapping route as the mapping stage does (``runners.route.RouteDrive``),
+    recording every tick; a ``RouteError`` if the route cannot be driven."""
     started = time.perf_counter()
     with Simulator(scenario, seed=seed) as sim:
-        sim.reset(scenario.route_start, stream=(MAPPING_STREAM,))
-        follower = PathFollower(
-            FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M)
-        )
-        follower.set_path(scenario.route)
-        max_ticks = int((3.0 * scenario.route_length_m / robot.max_linear + 600.0) * scenario.spec.sensor.rate_hz)
+        drive = RouteDrive(scenario, sim)
         stamps, odom, true, clouds = [], [], [], []
-        progress_mark, progress_time, next_report = -1.0, 0.0, 100.0
-        for _ in range(max_ticks):
+        next_report = 100.0
+        for _ in drive.ticks():
+            if progress and sim.travelled_m >= next_report:
+                print(f"  {scenario.name}: {sim.travelled_m:.0f} / {scenario.route_length_m:.0f} m", flush=True)
+                next_report += 100.0
             obs = sim.observe()
             stamps.append(obs.stamp)
             odom.append(obs.odom)
             true.append(sim.true_pose)
             clouds.append(obs.points)
-            command = follower.command(sim.true_pose)
-            if follower.reached:
-                break
-            if follower.progress > progress_mark + 0.1:
-                progress_mark, progress_time = follower.progress, sim.time
-            elif sim.time - progress_time > STUCK_S:
-                raise RuntimeError(f"{scenario.name}: the mapping route is blocked at {sim.true_pose[:2]}")
-            if progress and sim.travelled_m >= next_report:
-                print(f"  {scenario.name}: {sim.travelled_m:.0f} / {scenario.route_length_m:.0f} m", flush=True)
-                next_report += 100.0
-            sim.step(command)
-        else:
-            raise RuntimeError(f"{scenario.name}: mapping route not completed within {max_ticks} ticks")
+        drive.check()
         collisions, travelled = sim.collisions, sim.travelled_m
     counts = np.array([len(c) for c in clouds], dtype=np.int64)
     meta = {

@@ -18,6 +18,7 @@ import statistics
 import time
 from collections.abc import Callable
 from functools import partial
+from typing import TypeVar
 
 import numpy as np
 
@@ -68,7 +69,10 @@ def maze(size: int, rng: np.random.Generator, corridor: int = 20, wall: int = 5)
     return free
 
 
-def time_call(plan: Callable[[], object], repeats: int) -> tuple[float, float, object]:
+Result = TypeVar("Result")
+
+
+def time_call(plan: Callable[[], Result], repeats: int) -> tuple[float, float, Result]:
     """Median wall-clock ms, median CPU ms and the result of `repeats` calls after a warm-up."""
     result = plan()  # compile / load the cache, warm the allocator
     wall, cpu = [], []

@@ -43,13 +43,13 @@ def first_visits(truth: np.ndarray) -> np.ndarray:
 def replay(rec: Recording, overrides: dict[str, Any]) -> dict[str, Any]:
     odometry = LidarOdometry(OdometryConfig.model_validate({"source": "lidar", **overrides}))
     started = time.perf_counter()
-    estimate = []
+    poses = []
     for k in range(len(rec)):
         observation = rec.observation(k)
-        estimate.append(odometry.update(observation.points, observation.odom))
+        poses.append(odometry.update(observation.points, observation.odom))
     seconds = time.perf_counter() - started
     truth = np.array([se2.between(rec.true[0], pose) for pose in rec.true])
-    estimate = np.array([se2.between(estimate[0], pose) for pose in estimate])
+    estimate = np.array([se2.between(poses[0], pose) for pose in poses])
     error = np.hypot(*(estimate[:, :2] - truth[:, :2]).T)
     heading = np.degrees(se2.wrap_angle(estimate[:, 2] - truth[:, 2]))
     first = error[first_visits(truth)]

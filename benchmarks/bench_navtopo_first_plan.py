@@ -18,9 +18,11 @@ import json
 import time
 from pathlib import Path
 from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 
+from navkit.types import Observation
 from navtopo.planning import build_union_grid
 from navtopo.system import NavTopo, NavTopoConfig
 
@@ -42,6 +44,7 @@ def main() -> None:
     NavTopo.warm_up()  # the compiled kernels, as the runner's worker loads them before timing
     system = NavTopo.load(args.map, NavTopoConfig())
     navigator, graph = system.navigator, system.graph
+    assert navigator.map_poses is not None, "a loaded map has its locations' map-frame poses"
     positions = navigator.map_poses[:, :2]
     plans, unions, failed = [], [], 0
     for _ in range(args.repeats):
@@ -51,7 +54,7 @@ def main() -> None:
             system.unions.clear()
             navigator.global_planner.reset()
             started = time.perf_counter()
-            planned = navigator._plan(SimpleNamespace(stamp=0.0), start, np.zeros(3))
+            planned = navigator._plan(cast(Observation, SimpleNamespace(stamp=0.0)), start, np.zeros(3))  # only its stamp is read
             plans.append((time.perf_counter() - started) * 1e3)
             failed += not planned
             started = time.perf_counter()

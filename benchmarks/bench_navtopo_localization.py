@@ -65,7 +65,7 @@ def main() -> None:
                 continue
             best = found[0]
             estimate = se2.compose(vertex_truth[best.vertex], best.pose)
-            error = se2.distance(estimate, truth)
+            error = float(se2.distance(estimate, truth))
             errors.append(error)
             outcomes.append("ok" if error <= args.tolerance else "wrong_place")
     counts = {k: outcomes.count(k) for k in ("ok", "wrong_place", "not_localized")}

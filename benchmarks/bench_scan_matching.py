@@ -77,7 +77,7 @@ def route_poses(scenario, count: int, rng: np.random.Generator) -> np.ndarray:
     cumulative = np.concatenate([[0.0], np.cumsum(lengths)])
     passable = scenario.passable
     world = scenario.world
-    poses = []
+    poses: list[list[float]] = []
     while len(poses) < count:
         s = rng.uniform(0.0, cumulative[-1])
         k = min(int(np.searchsorted(cumulative, s, side="right")) - 1, len(lengths) - 1)
@@ -92,7 +92,7 @@ def route_poses(scenario, count: int, rng: np.random.Generator) -> np.ndarray:
         heading = np.arctan2(direction[1], direction[0]) + rng.uniform(-0.52, 0.52)
         if rng.random() < 0.5:
             heading += np.pi
-        poses.append([xy[0], xy[1], wrap_angle(heading)])
+        poses.append([xy[0], xy[1], float(wrap_angle(heading))])
     return np.asarray(poses)
 
 
@@ -127,7 +127,7 @@ def run_pairs(grids, poses, pairs, guess_mode: str, config: MatchingConfig, rng)
                 "true_overlap": float(true_overlap),
                 "accepted": bool(result.accepted),
                 "translation_error_m": float(np.hypot(error[0], error[1])),
-                "rotation_error_deg": float(np.degrees(abs(wrap_angle(error[2])))),
+                "rotation_error_deg": float(np.degrees(abs(float(wrap_angle(error[2]))))),
                 # the matcher's own estimate of its error (one sigma), to check against the errors
                 "rotation_sigma_deg": float(np.degrees(np.sqrt(result.covariance[2, 2])))
                 if result.covariance is not None

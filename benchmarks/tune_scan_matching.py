@@ -67,7 +67,11 @@ def figures(records: dict[str, list[dict]], accepted) -> dict[str, Any]:
         rs = records[mode]
         acc = np.array([accepted(mode, r) for r in rs], dtype=bool)
         bad = np.array([wrong(r) for r in rs], dtype=bool)
-        entry = {"pairs": len(rs), "wrong_accepts": int((acc & bad).sum()), "right_accepts": int((acc & ~bad).sum())}
+        entry: dict[str, Any] = {
+            "pairs": len(rs),
+            "wrong_accepts": int((acc & bad).sum()),
+            "right_accepts": int((acc & ~bad).sum()),
+        }
         if mode.startswith("near"):
             inside = np.array([r["true_overlap"] >= 0.3 for r in rs], dtype=bool)
             entry["right_accepted_share"] = round(float((acc & ~bad).mean()), 4)

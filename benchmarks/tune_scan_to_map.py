@@ -40,10 +40,10 @@ import numpy as np
 from _tuning import DEFAULT_CACHE, git_state, parse_list, recording
 from tune_metric_mapping import CANDIDATES, replay
 
+from baselines.metric_grid.config import ScanConfig
 from baselines.metric_grid.localization import ScanToMap, ScanToMapConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.scan2d import voxel_filter_2d
-from baselines.metric_grid.system import ScanConfig
 from navkit import geometry as se2
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
@@ -56,7 +56,7 @@ def sample_poses(scenario, grid_map: GridMap, count: int, rng: np.random.Generat
     """(count, 3) scene-frame poses: passable for the robot, on a FREE cell of the map, any heading."""
     world = scenario.world
     cells = np.argwhere(scenario.passable)
-    poses = []
+    poses: list[list[float]] = []
     while len(poses) < count:
         xy = world.to_world(cells[rng.integers(len(cells))][None])[0] + rng.uniform(-0.5, 0.5, 2) * world.resolution
         in_map = se2.transform_points(se2.inverse(scenario.route_start), xy[None])
@@ -114,7 +114,9 @@ def run_scene(scenario, key: str, maps: dict[str, GridMap], args) -> list[dict[s
         for name, grid_map in maps.items()
     }
     boundary = {name: ScanToMap(grid_map, base.model_copy(update={"wall_depth": 0.0})) for name, grid_map in maps.items()}
-    errors = {name: {start: {d: [] for d in args.depths} for start in ("truth", "perturbed")} for name in maps}
+    errors: dict[str, dict[str, dict[float, list[list[float] | None]]]] = {
+        name: {start: {d: [] for d in args.depths} for start in ("truth", "perturbed")} for name in maps
+    }
     depths_seen: dict[str, list[float]] = {name: [] for name in maps}
     to_map = se2.inverse(scenario.route_start)
     with Simulator(scenario, seed=seed) as sim:

@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from reports.contents import Report, RunSection
 from reports.tables import HEADERS, NOTES, cells, paper_comparison, table_rows
 
 if TYPE_CHECKING:
     from reports.plots import PlotResult
-    from reports.report import Report, RunSection
 
 CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
 STYLE = """

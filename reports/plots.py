@@ -29,6 +29,7 @@ import numpy as np  # noqa: E402
 from matplotlib.transforms import Affine2D  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from navkit.errors import BenchError  # noqa: E402
 from navkit.geometry import compose, transform_points  # noqa: E402
 from navkit.raster import FREE, OCCUPIED, GridFrame, MapFileError, read_map_server  # noqa: E402
 from reports.results import GroundTruth, Run, RunFormatError, TrialRecord, read_png  # noqa: E402
@@ -145,8 +146,10 @@ def map_frame(run: Run) -> NDArray | None:
 # a graph map (graph.json, NavTopo's format)
 
 
-class MapFormatError(ValueError):
+class MapFormatError(BenchError):
     """A saved map a plot cannot read; ``str(error)`` names the file and the reason."""
+
+    exit_code = 2  # an input refused
 
 
 @dataclass
@@ -368,7 +371,7 @@ def plot_trajectories(run: Run, system: str, folder: Path) -> PlotResult:
                 ax.plot([end[0]], [end[1]], marker="X", color="red", markeredgecolor="black", markersize=9, zorder=6)
                 ax.annotate(
                     f"{r.trial}: {r.reason}",
-                    end,
+                    (end[0], end[1]),
                     xytext=(4, 4),
                     textcoords="offset points",
                     fontsize=6,
@@ -481,7 +484,7 @@ def plot_efficiency(groups: list[Group], folder: Path, name: str = "efficiency")
         mean = f"{np.mean([r.efficiency for r in ok]):.3f}" if ok else "–"
         ax.scatter(
             [r.trial + offset for r in ok],
-            [r.efficiency for r in ok],
+            [r.efficiency or 0.0 for r in ok],  # none is None (ok)
             color=c,
             marker=markers[k % len(markers)],
             s=22,

@@ -20,47 +20,15 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 
 import yaml
 
+from reports.contents import Report, RunSection
 from reports.html import UNDECODED, shown, write_html
 from reports.plots import PlotResult, groups_of, plot_efficiency, plot_planning, run_plots
 from reports.results import Run, RunFormatError
 from reports.tables import write_tables
-
-
-@dataclass
-class RunSection:
-    """One run in a report: its key, its plots, its config file and the command that reproduces it."""
-
-    run: Run
-    key: str
-    plots: list[PlotResult] = field(default_factory=list)
-    config_file: str = "config.yaml"
-    command: str = ""
-
-
-@dataclass
-class Report:
-    out: Path
-    sections: list[RunSection]
-    combined: list[PlotResult]
-    files: list[Path]
-    study: list[PlotResult] = field(default_factory=list)
-    study_title: str = ""
-    left_out: list[str] = field(default_factory=list)  # runs named twice or copied, one line each
-
-    @property
-    def html(self) -> Path:
-        return self.out / "report.html"
-
-    @property
-    def notes(self) -> list[str]:
-        """Why any plot was skipped or drawn without the GT map, one line each."""
-        lines = [f"{s.key}: {p.name}: {p.note}" for s in self.sections for p in s.plots if p.note]
-        return self.left_out + lines + [f"{p.name}: {p.note}" for p in self.combined + self.study if p.note]
 
 
 def run_key(run: Run) -> str:

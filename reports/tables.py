@@ -128,8 +128,9 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
     summaries = [run.summary[system] for run in runs if system in run.summary]
     memory = {part: _max([s.memory.model_dump().get(part) for s in summaries]) for part in (*MEMORY_PARTS, "total")}
     mapping = [run.mapping.get(system) for run in runs]
-    scan_medians = [m.ms_per_scan.median for m in mapping if m is not None and m.ms_per_scan.median is not None]
-    scan_p95 = [m.ms_per_scan.p95 for m in mapping if m is not None and m.ms_per_scan.p95 is not None]
+    scans = [m.ms_per_scan for m in mapping if m is not None and m.ms_per_scan is not None]
+    scan_medians = [s.median for s in scans if s.median is not None]
+    scan_p95 = [s.p95 for s in scans if s.p95 is not None]
     errors = [m.error for m in mapping if m is not None and m.error]
     return Row(
         scenario=scenario,
@@ -346,7 +347,7 @@ def csv_rows(rows: list[Row]) -> list[dict[str, str]]:
             "planning_ms_median": row.planning_ms_median,
             "planning_ms_p95": row.planning_ms_p95,
             "planning_calls": row.planning_calls if not row.paper else None,
-            "memory_total_mb": None if row.memory.get("total") is None else row.memory["total"] / 1e6,
+            "memory_total_mb": None if (total := row.memory.get("total")) is None else total / 1e6,
             "disk_mb": None if row.disk_bytes is None else row.disk_bytes / 1e6,
             "rss_growth_mb": None if row.rss_bytes is None else row.rss_bytes / 1e6,
             "rss_process_mb": None if row.rss_process_bytes is None else row.rss_process_bytes / 1e6,
@@ -466,12 +467,12 @@ def paper_comparison(rows: list[Row]) -> list[str]:
         if topo is None or metric is None:
             continue
         where = f"{scenario} ({setting})"
-        a, b = topo.memory.get("total"), metric.memory.get("total")
-        if a and b:
+        memory_a, memory_b = topo.memory.get("total"), metric.memory.get("total")
+        if memory_a and memory_b:
             notes.append(
-                f"{where}, memory: NavTopo {a / 1e6:.2f} MB (of which its place-recognition weights "
-                f"{mb(topo.memory.get('model'))} MB) vs the metric baseline {b / 1e6:.2f} MB; the paper: 57 vs 352 MB. "
-                + _agreement(a < b)
+                f"{where}, memory: NavTopo {memory_a / 1e6:.2f} MB (of which its place-recognition weights "
+                f"{mb(topo.memory.get('model'))} MB) vs the metric baseline {memory_b / 1e6:.2f} MB; the paper: 57 vs 352 MB. "
+                + _agreement(memory_a < memory_b)
                 + "Ours are exact bytes of the structures kept to navigate; the paper does not define its figure so."
             )
         a, b = topo.planning_ms_median, metric.planning_ms_median

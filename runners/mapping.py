@@ -1,8 +1,9 @@
 """Stage 1: drive the mapping route and let every system build its map from the same scans.
 
-A ground-truth route follower (the shared follower on the true pose) moves the robot along the
-scenario's route; systems only observe. Each scan reaches every system in the same tick
-(lock-step); the wall clock of each ``observe`` call is that system's mapping cost.
+The mapping drive (``runners.route``: the shared follower on the true pose) moves the robot
+along the scenario's route; systems only observe. Each scan reaches every system in the same tick
+(lock-step); the wall clock of each ``observe`` call is that system's mapping cost. Each system's
+map is saved and its ``MappingReport`` (``reports.records``) written to ``mapping/<system>.json``.
 """
 
 from __future__ import annotations
@@ -11,31 +12,24 @@ import tempfile
 import time
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pydantic import BaseModel
 
-from navkit.follower import FollowerConfig, PathFollower
-from navkit.types import MEMORY_PARTS
-from runners.metrics import edge_errors, stats_ms, unjoined_neighbours
+from reports.records import MappingReport, Stats
+from runners.metrics import disk_report, edge_errors, stats_ms, unjoined_neighbours
 from runners.payload import ScenarioFiles, pack_dir
-from runners.protocol import TrialProtocol
-from runners.results import RunDir, disk_bytes, write_json
-from runners.sim import MAPPING_STREAM, Simulator
-from runners.systems import GroundTruth, SystemContext, SystemEntry, get_system
+from runners.protocol import apply_setting, context_for
+from runners.results import RunDir, write_json
+from runners.route import RouteDrive, RouteError
+from runners.sim import Simulator
+from runners.systems import NavigationSystem, SystemEntry, get_system, import_modules
 from scenarios import Scenario
 
 GROWTH_EVERY_M = 10.0
-STUCK_S = 60.0  # no progress along the route for this long (simulated time) stops mapping
-
-
-class RouteError(RuntimeError):
-    """The mapping route cannot be driven (a property of the scenario: resuming will not help)."""
-
-
-ROUTE_GOAL_TOLERANCE_M = 0.3
 
 
 @dataclass
@@ -75,42 +69,13 @@ def unjoined_locations(
     return unjoined_neighbours(positions, pairs, scenario.world.clearances_at, scenario.spec.robot.radius)
 
 
-def context_for(
-    entry: SystemEntry, scenario: Scenario, sim: Simulator | None, protocol: TrialProtocol | None = None
-) -> SystemContext:
-    """What a system is told: the robot, the sensor, the stop tolerance; ground truth only if the
-    entry is privileged (the oracle), with the world of the stage the simulator runs."""
-    protocol = protocol or TrialProtocol()
-    truth = None
-    if entry.privileged:
-        world = scenario.world
-        if sim is not None and sim.with_changes:
-            world = scenario.navigation_world
-        truth = GroundTruth(world=world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None)
-    return SystemContext(
-        robot=scenario.spec.robot, sensor=scenario.spec.sensor, stop_tolerance=protocol.stop_tolerance, ground_truth=truth
-    )
-
-
-def disk_report(entry: SystemEntry, map_dir: Path) -> dict[str, Any]:
-    """Bytes of a saved map on disk: the whole folder, and per memory part where the system says
-    which file is which (``disk_usage``); files of no part (e.g. mapping state kept for later
-    re-optimisation) count under ``other``."""
-    total = disk_bytes(map_dir)
-    usage = getattr(entry.cls, "disk_usage", None)
-    parts = dict(usage(map_dir)) if usage is not None else {"map": total}
-    disk = {part: int(parts.get(part, 0)) for part in MEMORY_PARTS}
-    disk["other"] = total - sum(v for k, v in parts.items() if k in MEMORY_PARTS and k != "model")
-    return {"disk_bytes": total, "disk": disk}
-
-
 def run_mapping(
     scenario: Scenario,
     systems: list[MappingSystem],
     run: RunDir,
     seed: int,
     progress: Callable[[float, float], None] | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> dict[str, MappingReport]:
     """Drive the route once; save each system's map and write ``mapping/<system>.json``."""
     drive = drive_mapping(scenario, systems, run, seed)
     while True:
@@ -124,122 +89,123 @@ def run_mapping(
 
 def drive_mapping(
     scenario: Scenario, systems: list[MappingSystem], run: RunDir, seed: int
-) -> Generator[tuple[float, float], None, dict[str, dict[str, Any]]]:
+) -> Generator[tuple[float, float], None, dict[str, MappingReport]]:
     """``run_mapping`` as a generator: yields (metres driven, route length) every tick and returns
     the reports. The drive depends on the seed and the route only, never on the systems
     observing it, so each system mapped alone (a mapping job) gets the very scans it would get
     beside the others."""
-    robot = scenario.spec.robot
     sim = Simulator(scenario, seed=seed)
     try:
-        sim.reset(scenario.route_start, stream=(MAPPING_STREAM,))
-        instances = {s.entry.name: s.entry.create(s.config, context_for(s.entry, scenario, sim)) for s in systems}
-        follower = PathFollower(
-            FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M)
-        )
-        follower.set_path(scenario.route)
+        drive = RouteDrive(scenario, sim)
+        mappers = Mappers({s.entry.name: s.entry.create(s.config, context_for(s.entry, scenario, sim)) for s in systems})
         route_length = scenario.route_length_m
-        max_ticks = int((3.0 * route_length / robot.max_linear + 600.0) * scenario.spec.sensor.rate_hz)
-        observe_ms: dict[str, list[float]] = {name: [] for name in instances}
-        growth: dict[str, list[list[float]]] = {name: [] for name in instances}
-        true_at_stamp: dict[float, np.ndarray] = {}
-        travelled_at_stamp: dict[float, float] = {}
-        failures: dict[str, str] = {}  # a system that raised stops observing; the others go on
-
-        def guarded(name: str, call: Callable[[], Any]) -> Any:
-            try:
-                return call()
-            except Exception as exc:  # noqa: BLE001 - recorded as that system's mapping failure
-                failures[name] = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
-                return None
-
-        next_growth = 0.0
-        scans = 0
-        progress_mark, progress_time = -1.0, 0.0
-        for _ in range(max_ticks):
-            obs = sim.observe()
-            true_at_stamp[obs.stamp] = sim.true_pose
-            travelled_at_stamp[obs.stamp] = sim.travelled_m
-            scans += 1
-            for name, system in instances.items():
-                if name in failures:
-                    continue
-                t0 = time.perf_counter()
-                guarded(name, lambda system=system, obs=obs: system.observe(obs))
-                observe_ms[name].append((time.perf_counter() - t0) * 1e3)
-            if sim.travelled_m >= next_growth:
-                for name, system in instances.items():
-                    if name not in failures:
-                        growth[name].append([round(sim.travelled_m, 2), int(system.mapping_stats().get("map_bytes", 0))])
-                next_growth += GROWTH_EVERY_M
+        for _ in drive.ticks():
+            mappers.observe(sim)
             yield sim.travelled_m, route_length
-            command = follower.command(sim.true_pose)
-            if follower.reached:
-                break
-            if follower.progress > progress_mark + 0.1:
-                progress_mark, progress_time = follower.progress, sim.time
-            elif sim.time - progress_time > STUCK_S:
-                x, y = sim.true_pose[:2]
-                raise RouteError(
-                    f"the mapping route is blocked at ({x:.2f}, {y:.2f}), {follower.progress:.1f} m along it "
-                    f"({sim.collisions} collisions): it passes too close to walls or obstacles for the robot"
-                )
-            sim.step(command)
-        else:
-            raise RouteError(f"mapping route not completed within {max_ticks} ticks")
-        reports: dict[str, dict[str, Any]] = {}
+        drive.check()
         entries = {s.entry.name: s.entry for s in systems}
-        for name, system in instances.items():
-            map_dir = run.map_dir(name)
-            if name not in failures:
-                guarded(name, system.finish_mapping)
-            if name not in failures:
-                guarded(name, lambda system=system, map_dir=map_dir: system.save(map_dir))
-            if name in failures:
-                report = {"error": failures[name], "scans": scans, "map_bytes": None, "map_disk_bytes": None}
-                write_json(run.mapping_path(name), report)
-                reports[name] = report
-                continue
-            stats = dict(system.mapping_stats())
-            growth[name].append([round(sim.travelled_m, 2), int(stats.get("map_bytes", 0))])
-            report: dict[str, Any] = {
-                "scans": scans,
-                "route_length_m": round(sim.travelled_m, 3),
-                "route_plan_length_m": round(route_length, 3),
-                "collisions": sim.collisions,
-                "ms_per_scan": {k: v for k, v in stats_ms(observe_ms[name]).items() if k in ("median", "p95", "mean", "max")},
-                "map_bytes": int(stats.pop("map_bytes", 0)),
-                "growth": growth[name],
-            }
-            memory = getattr(system, "memory", None)
-            if memory is not None:
-                report["memory"] = memory().as_dict()
-            disk = disk_report(entries[name], map_dir)
-            report["map_disk_bytes"], report["map_disk"] = disk["disk_bytes"], disk["disk"]
-            stamped_edges = stats.pop("edges_stamped", None)
-            if stamped_edges is not None:
-                report["edge_error"] = edge_errors(stamped_edges, true_at_stamp)
-            vertex_stamps = stats.pop("vertex_stamps", None)
-            if vertex_stamps is not None and stamped_edges is not None:
-                report["unjoined_neighbours"] = len(unjoined_locations(scenario, vertex_stamps, stamped_edges, true_at_stamp))
-            if vertex_stamps is not None:
-                # revisits should reuse locations: the share of vertices made in the route's second half
-                half = sim.travelled_m / 2.0
-                late = sum(1 for stamp in vertex_stamps if travelled_at_stamp.get(stamp, 0.0) > half)
-                report["vertices_second_half"] = late
-                report["vertices_second_half_share"] = round(late / max(len(vertex_stamps), 1), 4)
-                # of those, the ones made where the robot had already been (a place mapped twice),
-                # as opposed to places the route's first half never entered (a room visited late)
-                report["vertices_second_half_revisited"] = revisited_late(vertex_stamps, true_at_stamp, travelled_at_stamp, half)
-                # the true pose (scenario frame) where each location was made: the runner's key to
-                # check a graph system's own estimates (``anchored_pose``) afterwards; never given to it
-                report["anchors"] = [[stamp, *(round(float(v), 6) for v in true_at_stamp[stamp])] for stamp in vertex_stamps]
-            report.update(stats)
-            write_json(run.mapping_path(name), report)
-            reports[name] = report
-        return reports
+        return {name: mappers.finish(name, entries[name], run, scenario, sim) for name in mappers.systems}
     finally:
         sim.close()
+
+
+class Mappers:
+    """The systems mapping one drive in lock-step: every scan to each, the wall clock of each
+    ``observe`` call, each map's growth every ``GROWTH_EVERY_M``, and the true pose and distance
+    driven at each scan's stamp. A system that raises stops observing (its mapping failed, with the
+    exception as its report's ``error``); the others go on."""
+
+    def __init__(self, systems: dict[str, NavigationSystem]) -> None:
+        self.systems = systems
+        self.observe_ms: dict[str, list[float]] = {name: [] for name in systems}
+        self.growth: dict[str, list[list[float]]] = {name: [] for name in systems}
+        self.true_at_stamp: dict[float, np.ndarray] = {}
+        self.travelled_at_stamp: dict[float, float] = {}
+        self.failures: dict[str, str] = {}
+        self.scans = 0
+        self.next_growth = 0.0
+
+    def guarded(self, name: str, call: Callable[[], Any]) -> Any:
+        try:
+            return call()
+        except Exception as exc:  # noqa: BLE001 - recorded as that system's mapping failure
+            self.failures[name] = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+            return None
+
+    def observe(self, sim: Simulator) -> None:
+        """One tick: the scan to every system that has not failed."""
+        obs = sim.observe()
+        self.true_at_stamp[obs.stamp] = sim.true_pose
+        self.travelled_at_stamp[obs.stamp] = sim.travelled_m
+        self.scans += 1
+        for name, system in self.systems.items():
+            if name in self.failures:
+                continue
+            t0 = time.perf_counter()
+            self.guarded(name, partial(system.observe, obs))
+            self.observe_ms[name].append((time.perf_counter() - t0) * 1e3)
+        if sim.travelled_m >= self.next_growth:
+            for name, system in self.systems.items():
+                if name not in self.failures:
+                    self.growth[name].append([round(sim.travelled_m, 2), int(system.mapping_stats().get("map_bytes", 0))])
+            self.next_growth += GROWTH_EVERY_M
+
+    def finish(self, name: str, entry: SystemEntry, run: RunDir, scenario: Scenario, sim: Simulator) -> MappingReport:
+        """The drive is over: the system finishes and saves its map; its report, written."""
+        system, map_dir = self.systems[name], run.map_dir(name)
+        if name not in self.failures:
+            self.guarded(name, system.finish_mapping)
+        if name not in self.failures:
+            self.guarded(name, partial(system.save, map_dir))
+        if name in self.failures:
+            report = MappingReport(error=self.failures[name], scans=self.scans, map_bytes=None, map_disk_bytes=None)
+        else:
+            report = self.report(name, entry, map_dir, scenario, sim)
+        write_json(run.mapping_path(name), report)
+        return report
+
+    def report(self, name: str, entry: SystemEntry, map_dir: Path, scenario: Scenario, sim: Simulator) -> MappingReport:
+        """The runner's figures of a system's mapping, then the system's own (``mapping_stats``)."""
+        system = self.systems[name]
+        stats = dict(system.mapping_stats())
+        self.growth[name].append([round(sim.travelled_m, 2), int(stats.get("map_bytes", 0))])
+        scan_ms = stats_ms(self.observe_ms[name])
+        fields: dict[str, Any] = {
+            "scans": self.scans,
+            "route_length_m": round(sim.travelled_m, 3),
+            "route_plan_length_m": round(scenario.route_length_m, 3),
+            "collisions": sim.collisions,
+            "ms_per_scan": Stats(median=scan_ms.median, mean=scan_ms.mean, p95=scan_ms.p95, max=scan_ms.max),
+            "map_bytes": int(stats.pop("map_bytes", 0)),
+            "growth": self.growth[name],
+        }
+        memory = getattr(system, "memory", None)
+        if memory is not None:
+            fields["memory"] = memory().as_dict()
+        fields["map_disk_bytes"], fields["map_disk"] = disk_report(entry, map_dir)
+        stamped_edges = stats.pop("edges_stamped", None)
+        if stamped_edges is not None:
+            fields["edge_error"] = edge_errors(stamped_edges, self.true_at_stamp)
+        vertex_stamps = stats.pop("vertex_stamps", None)
+        if vertex_stamps is not None and stamped_edges is not None:
+            fields["unjoined_neighbours"] = len(unjoined_locations(scenario, vertex_stamps, stamped_edges, self.true_at_stamp))
+        if vertex_stamps is not None:
+            fields.update(self.locations(vertex_stamps, sim.travelled_m / 2.0))
+        return MappingReport(**{**fields, **stats})
+
+    def locations(self, vertex_stamps: list[float], half: float) -> dict[str, Any]:
+        """A graph system's locations: how many it made in the route's second half (revisits should
+        reuse locations), how many of those where the robot had already been (a place mapped
+        twice, as opposed to a room the first half never entered), and the true pose (scenario
+        frame) where each was made: the runner's key to check a graph system's own estimates
+        (``anchored_pose``) afterwards; never given to it."""
+        late = sum(1 for stamp in vertex_stamps if self.travelled_at_stamp.get(stamp, 0.0) > half)
+        return {
+            "vertices_second_half": late,
+            "vertices_second_half_share": round(late / max(len(vertex_stamps), 1), 4),
+            "vertices_second_half_revisited": revisited_late(vertex_stamps, self.true_at_stamp, self.travelled_at_stamp, half),
+            "anchors": [[stamp, *(round(float(v), 6) for v in self.true_at_stamp[stamp])] for stamp in vertex_stamps],
+        }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -267,9 +233,6 @@ def mapping_job(job: MappingJob) -> Iterator[dict[str, Any]]:
     most every ``PROGRESS_EVERY_S``), then per system ``mapped`` {system, report, map (tar bytes,
     None if its mapping failed)}; or ``route_error`` {detail} (the route cannot be driven: a
     property of the scenario)."""
-    from runners.navigation import import_modules
-    from runners.protocol import apply_setting
-
     import_modules(job.modules)
     systems = []
     for name, config in job.configs.items():
@@ -293,5 +256,5 @@ def mapping_job(job: MappingJob) -> Iterator[dict[str, Any]]:
             return
         for name, report in reports.items():
             map_dir = run.map_dir(name)
-            archive = pack_dir(map_dir) if "error" not in report and map_dir.is_dir() else None
+            archive = pack_dir(map_dir) if report.error is None and map_dir.is_dir() else None
             yield {"kind": "mapped", "system": name, "report": report, "map": archive}

@@ -21,6 +21,7 @@ Figures that are undefined (no successes, no planning calls) are ``None`` (JSON 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,6 +29,17 @@ from numpy.typing import NDArray
 
 from navkit import geometry as se2
 from navkit.types import MEMORY_PARTS
+from reports.records import (
+    DiskParts,
+    EdgeError,
+    MappingReport,
+    NavigationReport,
+    Stats,
+    SummaryMemory,
+    SystemSummary,
+    TrialRecord,
+)
+from runners.results import disk_bytes
 
 GOAL_TOLERANCE_M = 0.5
 TIMEOUT_FACTOR = 3.0
@@ -70,18 +82,18 @@ def efficiency(shortest_m: float, travelled_m: float) -> float:
     return float(shortest_m / max(shortest_m, travelled_m)) if max(shortest_m, travelled_m) > 0 else 1.0
 
 
-def stats_ms(values: list[float] | NDArray) -> dict[str, float | int | None]:
+def stats_ms(values: list[float] | NDArray) -> Stats:
     """median, mean, p95, max, count of a list of durations (ms); None when empty."""
     v = np.asarray(values, dtype=np.float64)
     if v.size == 0:
-        return {"median": None, "mean": None, "p95": None, "max": None, "count": 0}
-    return {
-        "median": round(float(np.median(v)), 4),
-        "mean": round(float(v.mean()), 4),
-        "p95": round(float(np.percentile(v, 95)), 4),
-        "max": round(float(v.max()), 4),
-        "count": int(v.size),
-    }
+        return Stats(median=None, mean=None, p95=None, max=None, count=0)
+    return Stats(
+        median=round(float(np.median(v)), 4),
+        mean=round(float(v.mean()), 4),
+        p95=round(float(np.percentile(v, 95)), 4),
+        max=round(float(v.max()), 4),
+        count=int(v.size),
+    )
 
 
 def tracking_stats(errors: list[float] | None) -> dict[str, float] | None:
@@ -97,13 +109,13 @@ def tracking_stats(errors: list[float] | None) -> dict[str, float] | None:
     }
 
 
-def _mean_or_none(values: list[float]) -> float | None:
+def _mean_or_none(values: list[Any]) -> float | None:
     return round(float(np.mean(values)), 6) if values else None
 
 
 def summarize(
-    records: list[dict[str, Any]], mapping: dict[str, dict], navigation: dict[str, dict] | None = None
-) -> dict[str, Any]:
+    records: list[TrialRecord], mapping: dict[str, MappingReport], navigation: dict[str, NavigationReport] | None = None
+) -> dict[str, SystemSummary]:
     """summary.json: keyed by system name only.
 
     records: trials.jsonl; mapping: ``mapping/<system>.json``; navigation: ``navigation/<system>.json``
@@ -114,73 +126,72 @@ def summarize(
     trial's median and p95, and the largest error seen.
     """
     navigation = navigation or {}
-    systems = sorted({r["system"] for r in records} | set(mapping))
-    out: dict[str, Any] = {}
+    systems = sorted({r.system for r in records} | set(mapping))
+    out: dict[str, SystemSummary] = {}
     for name in systems:
-        mine = [r for r in records if r["system"] == name]
-        successes = [r for r in mine if r["success"]]
-        nav = navigation.get(name) or {}
-        out[name] = {
-            "trials": len(mine),
-            "successes": len(successes),
-            "success_rate": round(len(successes) / len(mine), 6) if mine else None,
-            "efficiency_mean": _mean_or_none([r["efficiency"] for r in successes]),
-            "efficiency_to_goal_mean": _mean_or_none(
-                [r["efficiency_to_goal"] for r in successes if r.get("efficiency_to_goal") is not None]
-            ),
-            "spl_mean": _mean_or_none([r["spl"] for r in mine]),
-            "planning_ms": stats_ms([v for r in mine for v in r.get("planning_ms_samples", [])]),
-            "first_plan_ms": stats_ms([r["first_plan_ms"] for r in mine if r.get("first_plan_ms") is not None]),
-            "map_load_ms": nav.get("map_load_ms"),
-            "memory": memory_summary(mine, mapping.get(name) or {}, nav),
-            "tracking_error_m": _tracking_summary([r["tracking_error_m"] for r in mine if r.get("tracking_error_m")]),
+        mine = [r for r in records if r.system == name]
+        successes = [r for r in mine if r.success]
+        nav = navigation.get(name) or NavigationReport()
+        report = mapping.get(name) or MappingReport()
+        out[name] = SystemSummary(
+            trials=len(mine),
+            successes=len(successes),
+            success_rate=round(len(successes) / len(mine), 6) if mine else None,
+            efficiency_mean=_mean_or_none([r.efficiency for r in successes]),
+            efficiency_to_goal_mean=_mean_or_none([r.efficiency_to_goal for r in successes if r.efficiency_to_goal is not None]),
+            spl_mean=_mean_or_none([r.spl for r in mine]),
+            planning_ms=stats_ms([v for r in mine for v in r.planning_ms_samples]),
+            first_plan_ms=stats_ms([r.first_plan_ms for r in mine if r.first_plan_ms is not None]),
+            map_load_ms=nav.map_load_ms,
+            memory=memory_summary(mine, report, nav),
+            tracking_error_m=_tracking_summary([r.tracking_error_m for r in mine if r.tracking_error_m]),
             **_localization_summary(mine),
-            "mapping_ms_per_scan": (mapping.get(name) or {}).get("ms_per_scan"),
-            "failure_reasons": _count([r["reason"] for r in mine if not r["success"]]),
-        }
+            mapping_ms_per_scan=report.ms_per_scan,
+            failure_reasons=_count([r.reason for r in mine if not r.success]),
+        )
     return out
 
 
-def memory_summary(records: list[dict[str, Any]], mapping: dict[str, Any], navigation: dict[str, Any]) -> dict[str, Any]:
+def memory_summary(records: list[TrialRecord], mapping: MappingReport, navigation: NavigationReport) -> SummaryMemory:
     """One system's memory figures: the breakdown's parts (exact bytes), the saved map on disk (all
     and per part), RSS growth and the worker's whole RSS after the first plan."""
-    breakdowns = [r["memory"] for r in records if r.get("memory")]
-    if navigation.get("memory"):
-        breakdowns.append(navigation["memory"])
+    breakdowns = [r.memory for r in records if r.memory is not None]
+    if navigation.memory is not None:
+        breakdowns.append(navigation.memory)
     parts: dict[str, int | None] = {part: None for part in (*MEMORY_PARTS, "total")}
     if breakdowns:
-        parts = {part: max(int(b.get(part, 0)) for b in breakdowns) for part in (*MEMORY_PARTS, "total")}
-    return {
-        "map_bytes": mapping.get("map_bytes"),
-        "disk_bytes": navigation.get("disk_bytes", mapping.get("map_disk_bytes")),
-        "rss_bytes": navigation.get("rss_bytes"),
-        "rss_process_bytes": navigation.get("rss_process_bytes"),
-        "loaded_map_bytes": navigation.get("map_bytes"),
+        parts = {part: max(int(getattr(b, part) or 0) for b in breakdowns) for part in (*MEMORY_PARTS, "total")}
+    return SummaryMemory(
+        map_bytes=mapping.map_bytes,
+        disk_bytes=navigation.given("disk_bytes", mapping.map_disk_bytes),
+        rss_bytes=navigation.rss_bytes,
+        rss_process_bytes=navigation.rss_process_bytes,
+        loaded_map_bytes=navigation.map_bytes,
         **parts,
-        "disk": navigation.get("disk", mapping.get("map_disk")),
-    }
+        disk=navigation.given("disk", mapping.map_disk),
+    )
 
 
-def _localization_summary(records: list[dict[str, Any]]) -> dict[str, Any]:
+def _localization_summary(records: list[TrialRecord]) -> dict[str, Any]:
     """Start-up localizations checked against the truth, and goal conversions (graph systems)."""
     out: dict[str, Any] = {}
-    found = [r["startup_localization"] for r in records if r.get("startup_localization")]
-    if found or any(r.get("reason") == "not_localized" for r in records):
+    found = [r.startup_localization for r in records if r.startup_localization]
+    if found or any(r.reason == "not_localized" for r in records):
         seconds = [f["seconds"] for f in found if f.get("seconds") is not None]
         out["startup_localization"] = {
             "right": sum(1 for f in found if f["right"]),
             "wrong": sum(1 for f in found if not f["right"]),
-            "not_localized": sum(1 for r in records if r.get("reason") == "not_localized"),
-            "seconds": stats_ms(seconds) if seconds else None,
+            "not_localized": sum(1 for r in records if r.reason == "not_localized"),
+            "seconds": stats_ms(seconds).as_json() if seconds else None,
             "error_m_median": round(float(np.median([f["error_m"] for f in found])), 4) if found else None,
         }
-    errors = [r["goal_conversion_error_m"] for r in records if r.get("goal_conversion_error_m") is not None]
+    errors = [r.goal_conversion_error_m for r in records if r.goal_conversion_error_m is not None]
     if errors:
         out["goal_conversion_error_m"] = {"median": round(float(np.median(errors)), 4), "max": round(float(max(errors)), 4)}
     return out
 
 
-def _tracking_summary(per_trial: list[dict[str, float]]) -> dict[str, float] | None:
+def _tracking_summary(per_trial: list[dict[str, Any]]) -> dict[str, float] | None:
     if not per_trial:
         return None
     return {
@@ -213,15 +224,27 @@ def each_edge_error(
     return out
 
 
-def edge_errors(edges: list[tuple[float, float, list[float]]], true_pose_at: dict[float, NDArray]) -> dict[str, Any]:
+def edge_errors(edges: list[tuple[float, float, list[float]]], true_pose_at: dict[float, NDArray]) -> EdgeError:
     """Each edge (stamp_u, stamp_v, T_uv) against the true relative pose of its observation points."""
     each = each_edge_error(edges, true_pose_at)
     translation, rotation = [e[0] for e in each], [e[1] for e in each]
 
-    def two(v: list[float]) -> dict[str, float | None]:
-        return {"median": round(float(np.median(v)), 4) if v else None, "max": round(float(np.max(v)), 4) if v else None}
+    def two(v: list[float]) -> Stats:
+        return Stats(median=round(float(np.median(v)), 4) if v else None, max=round(float(np.max(v)), 4) if v else None)
 
-    return {"translation_m": two(translation), "rotation_deg": two(rotation), "count": len(translation)}
+    return EdgeError(translation_m=two(translation), rotation_deg=two(rotation), count=len(translation))
+
+
+def disk_report(entry: Any, map_dir: Path) -> tuple[int, DiskParts]:
+    """Bytes of a saved map on disk: the whole folder, and per memory part where the system says
+    which file is which (``disk_usage`` of the entry's class); files of no part (e.g. mapping
+    state kept for later re-optimisation) count under ``other``."""
+    total = disk_bytes(map_dir)
+    usage = getattr(entry.cls, "disk_usage", None)
+    parts = dict(usage(map_dir)) if usage is not None else {"map": total}
+    disk = {part: int(parts.get(part, 0)) for part in MEMORY_PARTS}
+    disk["other"] = total - sum(v for k, v in parts.items() if k in MEMORY_PARTS and k != "model")
+    return total, DiskParts(**disk)
 
 
 JOIN_RADIUS_M = 6.0  # locations this close, with a way between them, should be joined directly (or nearly)
@@ -285,41 +308,43 @@ def trial_record(
     tracking_error_m: list[float] | None = None,
     initial_pose_error: NDArray | None = None,
     memory: dict[str, int] | None = None,
-) -> dict[str, Any]:
+    diagnostics: dict[str, Any] | None = None,
+) -> TrialRecord:
     """One line of trials.jsonl (the contract's keys, plus planning samples and extras).
 
     tracking_error_m: the distance between the system's own pose estimate and the truth at every
     tick (systems with a map-frame estimate only); initial_pose_error: the protocol's error
     [dx, dy, dyaw] added to the initial pose the system was given (None: it was given none);
     detail: one line on a failure the reason names only (``error``, ``crashed``, ``timeout`` of
-    the wall clock, ``out_of_memory``): the exception, the signal, the limit."""
+    the wall clock, ``out_of_memory``): the exception, the signal, the limit; diagnostics: the
+    keys a graph system's start-up localization and goal conversion add (``Anchors.judge``)."""
     eff = efficiency(trial.shortest_m, travelled_m) if success else None
     to_goal = None
     if success and final_distance_m is not None:
         # the capped figure hides a robot that stops up to goal_tolerance short; this one does not
         to_goal = efficiency(trial.shortest_m, travelled_m + final_distance_m)
     samples = list(planning_ms or [])
-    return {
-        "system": system,
-        "trial": index,
-        "success": bool(success),
-        "reason": reason,
-        "detail": detail,
-        "start": [round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
-        "goal": [round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
-        "shortest_m": round(trial.shortest_m, 4),
-        "travelled_m": round(travelled_m, 4),
-        "efficiency": round(eff, 6) if eff is not None else None,
-        "spl": round(eff, 6) if eff is not None else 0.0,
-        "efficiency_to_goal": round(to_goal, 6) if to_goal is not None else None,
-        "collisions": int(collisions),
-        "sim_time_s": round(sim_time_s, 3),
-        "compute_s": round(compute_s, 4),
-        "planning_ms": stats_ms(samples),
-        "planning_ms_samples": [round(v, 4) for v in samples],
-        "first_plan_ms": round(float(first_plan_ms), 4) if first_plan_ms is not None else None,
-        "tracking_error_m": tracking_stats(tracking_error_m),
-        "initial_pose_error": (
+    return TrialRecord(
+        system=system,
+        trial=index,
+        success=bool(success),
+        reason=reason,
+        detail=detail,
+        start=[round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
+        goal=[round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
+        shortest_m=round(trial.shortest_m, 4),
+        travelled_m=round(travelled_m, 4),
+        efficiency=round(eff, 6) if eff is not None else None,
+        spl=round(eff, 6) if eff is not None else 0.0,
+        efficiency_to_goal=round(to_goal, 6) if to_goal is not None else None,
+        collisions=int(collisions),
+        sim_time_s=round(sim_time_s, 3),
+        compute_s=round(compute_s, 4),
+        planning_ms=stats_ms(samples),
+        planning_ms_samples=[round(v, 4) for v in samples],
+        first_plan_ms=round(float(first_plan_ms), 4) if first_plan_ms is not None else None,
+        tracking_error_m=tracking_stats(tracking_error_m),
+        initial_pose_error=(
             None
             if initial_pose_error is None
             else [
@@ -328,7 +353,8 @@ def trial_record(
                 round(float(np.degrees(initial_pose_error[2])), 3),
             ]
         ),
-        "memory": memory,
-        "final_distance_m": round(final_distance_m, 4) if final_distance_m is not None else None,
-        "seed": seed,
-    }
+        memory=memory,
+        final_distance_m=round(final_distance_m, 4) if final_distance_m is not None else None,
+        seed=seed,
+        **(diagnostics or {}),
+    )

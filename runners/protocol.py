@@ -28,14 +28,18 @@ from __future__ import annotations
 import copy
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from navkit import geometry as se2
+from runners.systems import GroundTruth, SystemContext, SystemEntry
 from scenarios import Scenario
 from scenarios.schema import GOAL_TOLERANCE_M, OdometryNoiseSpec
+
+if TYPE_CHECKING:
+    from runners.sim import Simulator
 
 INITIAL_POSE_SALT = 0x1A17  # keeps the initial-pose stream apart from the sensor noise streams
 
@@ -57,8 +61,9 @@ class TrialProtocol:
         initial poses and the followers' 0.5 m tolerance."""
         if not data:
             return cls(initial_pose_error_xy=0.0, initial_pose_error_yaw_deg=0.0, stop_tolerance=0.5)
-        known = {f.name: f.type for f in dataclasses.fields(cls)}
-        return cls(**{k: (str(v) if k == "goals" else float(v)) for k, v in data.items() if k in known})
+        known = {f.name for f in dataclasses.fields(cls)}
+        fields: dict[str, Any] = {k: (str(v) if k == "goals" else float(v)) for k, v in data.items() if k in known}
+        return cls(**fields)
 
     def initial_pose_error(self, seed: int, trial: int) -> NDArray[np.float64]:
         """(3,) [dx, dy, dyaw] of trial ``trial``: the error added to the true start (map frame)."""
@@ -74,6 +79,23 @@ class TrialProtocol:
         pose = np.asarray(true_start_in_map, dtype=np.float64) + error
         pose[2] = se2.wrap_angle(pose[2])
         return pose
+
+
+def context_for(
+    entry: SystemEntry, scenario: Scenario, sim: Simulator | None, protocol: TrialProtocol | None = None
+) -> SystemContext:
+    """What a system is told: the robot, the sensor, the stop tolerance; ground truth only if the
+    entry is privileged (the oracle), with the world of the stage the simulator runs."""
+    protocol = protocol or TrialProtocol()
+    truth = None
+    if entry.privileged:
+        world = scenario.world
+        if sim is not None and sim.with_changes:
+            world = scenario.navigation_world
+        truth = GroundTruth(world=world, world_from_map=scenario.route_start, true_pose=(lambda: sim.true_pose) if sim else None)
+    return SystemContext(
+        robot=scenario.spec.robot, sensor=scenario.spec.sensor, stop_tolerance=protocol.stop_tolerance, ground_truth=truth
+    )
 
 
 @dataclass(frozen=True)

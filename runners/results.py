@@ -1,9 +1,11 @@
 """The results folder of a run: the one container every tool reads (DESIGN.md, "Contracts").
 
-Writes are atomic (temporary file + rename) except ``trials.jsonl``, which is appended one
-flushed line per finished trial; a torn last line (a crash mid-write) is ignored on reading, so
-``--resume`` loses no finished trial and duplicates none. Every file is created with the user's
-umask (0644 for the usual 022), temporary files included.
+Its JSON files are the records of ``reports.records`` (manifest, trial records, mapping and
+navigation reports, summary), written here through those models. Writes are atomic (temporary
+file + rename) except ``trials.jsonl``, which is appended one flushed line per finished trial; a
+torn last line (a crash mid-write) is ignored on reading, so ``--resume`` loses no finished trial
+and duplicates none. Every file is created with the user's umask (0644 for the usual 022),
+temporary files included.
 """
 
 from __future__ import annotations
@@ -19,23 +21,24 @@ import numpy as np
 from numpy.typing import NDArray
 
 from navkit.files import atomic_write
+from reports.records import Record, TrialRecord, read_trials
+from reports.records import read_json as read_json  # the one reader of a results folder's JSON files
 
 
 def write_json(path: Path, data: Any) -> None:
+    """``data`` (a record, or plain values holding records) as indented JSON, atomically."""
     atomic_write(path, json.dumps(data, indent=2, allow_nan=False, default=_plain) + "\n")
 
 
 def _plain(value: Any) -> Any:
-    """numpy scalars and arrays as plain JSON values."""
+    """Records as their JSON objects; numpy scalars and arrays as plain JSON values."""
+    if isinstance(value, Record):
+        return value.as_json()
     if isinstance(value, np.generic):
         return value.item()
     if isinstance(value, np.ndarray):
         return value.tolist()
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
-
-
-def read_json(path: Path) -> Any:
-    return json.loads(path.read_text())
 
 
 def quaternion_z(yaw: NDArray) -> NDArray:
@@ -104,16 +107,19 @@ class RunDir:
     def mapping_path(self, system: str) -> Path:
         return self.root / "mapping" / f"{system}.json"
 
+    def navigation_path(self, system: str) -> Path:
+        return self.root / "navigation" / f"{system}.json"
+
     def map_dir(self, system: str) -> Path:
         return self.root / "maps" / system
 
     def trajectory_path(self, system: str, trial: int, estimate: bool = False) -> Path:
         return self.root / "trajectories" / system / f"trial-{trial}{'.est' if estimate else ''}.tum"
 
-    def append_trial(self, record: dict[str, Any]) -> None:
+    def append_trial(self, record: TrialRecord) -> None:
         """Append one record as one flushed line, under a lock shared by every writer process."""
         self.root.mkdir(parents=True, exist_ok=True)
-        line = json.dumps(record, allow_nan=False)
+        line = json.dumps(record.as_json(), allow_nan=False)
         with open(self.root / ".trials.lock", "a") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
             try:
@@ -124,28 +130,9 @@ class RunDir:
             finally:
                 fcntl.flock(lock, fcntl.LOCK_UN)
 
-    def read_trials(self) -> list[dict[str, Any]]:
-        """Finished trials, first record of each (system, trial); torn lines skipped."""
-        if not self.trials_path.is_file():
-            return []
-        records, seen = [], set()
-        text = self.trials_path.read_text()
-        lines = text.split("\n")
-        if not text.endswith("\n"):
-            lines = lines[:-1]  # a torn last line: the trial did not finish writing
-        for line in lines:
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            key = (record.get("system"), record.get("trial"))
-            if key in seen:
-                continue
-            seen.add(key)
-            records.append(record)
-        return records
+    def read_trials(self) -> list[TrialRecord]:
+        """Finished trials, first record of each (system, trial); torn and unreadable lines skipped."""
+        return read_trials(self.trials_path, skip_unreadable=True)
 
     def repair_trials(self) -> None:
         """Drop a torn last line so that appends start on a fresh line."""
@@ -154,35 +141,6 @@ class RunDir:
         text = self.trials_path.read_text()
         if text and not text.endswith("\n"):
             atomic_write(self.trials_path, text[: text.rfind("\n") + 1])
-
-
-class TrialsTail:
-    """Follows trials.jsonl: the complete records appended since the last call."""
-
-    def __init__(self, run: RunDir, skip: set[tuple[str, int]] | None = None) -> None:
-        self.path = run.trials_path
-        self.offset = self.path.stat().st_size if self.path.is_file() else 0
-        self.skip = set(skip or ())
-
-    def new_records(self) -> list[dict[str, Any]]:
-        if not self.path.is_file():
-            return []
-        with open(self.path) as f:
-            f.seek(self.offset)
-            text = f.read()
-        end = text.rfind("\n") + 1  # only whole lines; a line being written waits for the next call
-        self.offset += len(text[:end].encode())
-        records = []
-        for line in text[:end].splitlines():
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            key = (record.get("system"), record.get("trial"))
-            if key not in self.skip:
-                self.skip.add(key)
-                records.append(record)
-        return records
 
 
 def disk_bytes(directory: Path) -> int:

@@ -1,4 +1,9 @@
-"""One benchmark run: mapping, then navigation trials, then the summary (the `run` command)."""
+"""One benchmark run: mapping, then navigation trials, then the summary (the `run` command).
+
+The run's files are records of ``reports.records``: the ``Manifest`` written first (and read back
+on resume), the systems' ``MappingReport`` and ``NavigationReport``, a ``TrialRecord`` per trial
+and a ``SystemSummary`` per system at the end.
+"""
 
 from __future__ import annotations
 
@@ -19,15 +24,27 @@ from typing import Any
 
 import psutil
 
+from navkit.errors import BenchError
+from reports.records import (
+    Manifest,
+    MappingReport,
+    NavigationReport,
+    Protocol,
+    RunFormatError,
+    ScenarioInfo,
+    SystemSummary,
+    TrialRecord,
+)
 from runners.driver import Outcome, Steps, Submission, drive
-from runners.executors import Executor, open_executor
+from runners.executors import Event, Executor, open_executor
 from runners.ground_truth import write_ground_truth
-from runners.mapping import MappingJob, RouteError, mapping_job
+from runners.mapping import MappingJob, mapping_job
 from runners.metrics import summarize, trial_record
 from runners.navigation import TrialJob, trial_job, write_trial
 from runners.payload import ScenarioFiles, install_dir, pack_dir, scenario_files
 from runners.protocol import TrialProtocol, apply_setting, setting_of
-from runners.results import RunDir, point_latest, read_json, write_json
+from runners.results import RunDir, point_latest, write_json
+from runners.route import RouteError
 from runners.systems import SystemEntry, get_system
 from scenarios import Scenario
 
@@ -135,11 +152,12 @@ class RunHooks:
 
     on_stage(stage, value): ("run_dir", Path), ("mapping", [systems]), ("navigation", trial count),
     ("done", RunDir) once its summary is written;
-    on_mapping(travelled_m, route_m): the slowest mapping drive; on_trial(record): a trial recorded."""
+    on_mapping(travelled_m, route_m): the slowest mapping drive; on_trial(record): a trial recorded
+    (its JSON object, as its line in trials.jsonl holds it)."""
 
     on_stage: Callable[[str, Any], None] | None = None
     on_mapping: Callable[[float, float], None] | None = None
-    on_trial: Callable[[dict[str, Any]], None] | None = None
+    on_trial: Callable[[TrialRecord], None] | None = None
 
 
 @dataclass
@@ -163,7 +181,7 @@ def execute(
     scenario: Scenario,
     options: RunOptions,
     on_mapping: Callable[[float, float], None] | None = None,
-    on_trial: Callable[[dict[str, Any]], None] | None = None,
+    on_trial: Callable[[TrialRecord], None] | None = None,
     on_stage: Callable[[str, Any], None] | None = None,
     pool: Executor | None = None,
     on_jobs: Callable[[dict[str, int]], None] | None = None,
@@ -199,13 +217,14 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
     say = hooks.on_stage or (lambda _stage, _value: None)
     if options.resume is not None:
         run = RunDir(options.resume)
-        manifest = read_json(run.manifest_path)
-        systems = list(manifest["systems"])
-        seed = int(manifest["seed"])
-        trial_count = manifest.get("trial_count")
-        configs = manifest["config"]
-        protocol = TrialProtocol.from_json(manifest.get("protocol"))
-        setting_override = manifest.get("setting_override")
+        manifest = Manifest.read(run.manifest_path)
+        systems = list(manifest.systems)
+        seed = manifest.seed
+        trial_count = manifest.trial_count
+        configs = manifest.config
+        recorded = manifest.given("protocol")  # a manifest from before the protocol: exact initial poses
+        protocol = TrialProtocol.from_json(recorded.as_json() if recorded is not None else None)
+        setting_override = manifest.setting_override
         scenario = apply_setting(scenario, setting_override)
     else:
         systems = options.systems
@@ -217,26 +236,8 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
         configs = resolved_configs(systems, options.config_overrides, setting_of(scenario))
         run = new_run_dir(options, scenario, seed)
         run.root.mkdir(parents=True, exist_ok=True)
-        write_json(
-            run.manifest_path,
-            {
-                "scenario": {**scenario.summary(), "file": str(scenario.path.resolve())},
-                "scenario_sha256": scenario_fingerprint(scenario),
-                "systems": systems,
-                "seed": seed,
-                "setting": setting_of(scenario),
-                "setting_override": setting_override,
-                "odometry_noise": scenario.spec.odometry.noise.model_dump() if scenario.spec.odometry.noise else None,
-                "range_noise": scenario.spec.sensor.range_noise,
-                "protocol": protocol.as_json(),
-                "trial_count": trial_count,
-                "config": configs,
-                "versions": versions(),
-                "git_revision": git_revision(),
-                "machine": machine(),
-                "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-            },
-        )
+        manifest = new_manifest(scenario, systems, seed, setting_override, protocol, trial_count, configs)
+        write_json(run.manifest_path, manifest)
         if options.out is None:
             point_latest(run.root)
     say("run_dir", run.root)
@@ -244,7 +245,7 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
     entries = {name: get_system(name) for name in systems}
 
     if options.maps_from is not None and options.resume is None:
-        reuse_maps(options.maps_from, run, systems, manifest_of_run=read_json(run.manifest_path))
+        reuse_maps(options.maps_from, run, systems, manifest)
 
     files = ScenarioFiles.of(scenario)
     # stage 1: mapping, a job per drive (skipped for systems whose map and report are there)
@@ -264,7 +265,7 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
             for group in groups
         ]
         yield from map_systems(run, jobs, hooks.on_mapping)
-    mapping = {name: read_json(run.mapping_path(name)) for name in systems}
+    mapping = {name: MappingReport.read(run.mapping_path(name)) for name in systems}
     trials = TrialPlan(scenario, files, systems, configs, mapping, seed, trial_count, setting_override, protocol)
     yield from navigate(run, trials, options, slots, hooks.on_trial, say)
     if run.failed_stages:
@@ -272,6 +273,37 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
     write_summary(run, systems, mapping)
     say("done", run)
     return run
+
+
+def new_manifest(
+    scenario: Scenario,
+    systems: list[str],
+    seed: int,
+    setting_override: str | None,
+    protocol: TrialProtocol,
+    trial_count: int | None,
+    configs: dict[str, Any],
+) -> Manifest:
+    """What a new run is: its scenario (and the fingerprint a resume checks), systems, seed,
+    setting, protocol, trial count and resolved configs; the versions, revision and machine it
+    ran with, and when it started."""
+    return Manifest(
+        scenario=ScenarioInfo.model_validate({**scenario.summary(), "file": str(scenario.path.resolve())}),
+        scenario_sha256=scenario_fingerprint(scenario),
+        systems=systems,
+        seed=seed,
+        setting=setting_of(scenario),
+        setting_override=setting_override,
+        odometry_noise=scenario.spec.odometry.noise.model_dump() if scenario.spec.odometry.noise else None,
+        range_noise=scenario.spec.sensor.range_noise,
+        protocol=Protocol.model_validate(protocol.as_json()),
+        trial_count=trial_count,
+        config=configs,
+        versions=versions(),
+        git_revision=git_revision(),
+        machine=machine(),
+        created=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+    )
 
 
 def modules_of(entry: SystemEntry) -> list[str]:
@@ -298,7 +330,7 @@ def map_systems(run: RunDir, jobs: list[MappingJob], on_mapping: Callable[[float
             driven[k] = float("inf")  # this job's drive is over: the bar follows the others
             if message["map"] is not None:
                 install_dir(message["map"], run.map_dir(message["system"]))
-            write_json(run.mapping_path(message["system"]), message["report"])
+            write_json(run.mapping_path(message["system"]), message["report"])  # a MappingReport
             mapped.add(message["system"])
         elif message is not None and message["kind"] == "route_error":
             raise RouteError(message["detail"])  # the driver ends this run's other jobs
@@ -308,9 +340,8 @@ def map_systems(run: RunDir, jobs: list[MappingJob], on_mapping: Callable[[float
                 detail = f"{event.failure.kind}: {event.failure.detail}"
                 for name in jobs[k].configs:
                     if name not in mapped:
-                        write_json(
-                            run.mapping_path(name), {"error": detail, "scans": None, "map_bytes": None, "map_disk_bytes": None}
-                        )
+                        report = MappingReport(error=detail, scans=None, map_bytes=None, map_disk_bytes=None)
+                        write_json(run.mapping_path(name), report)
 
 
 @dataclass
@@ -321,7 +352,7 @@ class TrialPlan:
     files: ScenarioFiles
     systems: list[str]
     configs: dict[str, Any]
-    mapping: dict[str, dict[str, Any]]  # system -> its mapping report
+    mapping: dict[str, MappingReport]
     seed: int
     trial_count: int | None
     setting: str | None
@@ -333,7 +364,7 @@ def navigate(
     plan: TrialPlan,
     options: RunOptions,
     slots: int,
-    on_trial: Callable[[dict[str, Any]], None] | None,
+    on_trial: Callable[[TrialRecord], None] | None,
     say: Callable[[str, Any], None],
 ) -> Steps:
     """Stage 2 as steps: a system whose mapping failed is a failed stage (no trial of it runs or is
@@ -341,60 +372,11 @@ def navigate(
     a system), one job per chunk. A trial whose worker crashed or
     passed its wall-clock limit is recorded so (``crashed`` / ``timeout``) and the rest of its chunk
     runs in a new job. Each record names the worker that ran it (``worker``; None if none did)."""
-    scenario, trial_count = plan.scenario, plan.trial_count
-    run.repair_trials()
-    done = {(r["system"], r["trial"]) for r in run.read_trials()}
-    run.failed_stages = {}
-    run.warnings = 0
-
-    def record(message_or_record: dict[str, Any], worker: dict[str, Any] | None) -> None:
-        is_message = "record" in message_or_record
-        rec = message_or_record["record"] if is_message else message_or_record
-        rec["worker"] = worker
-        if is_message:
-            write_trial(run, scenario, message_or_record)
-        else:
-            run.append_trial(rec)
-        done.add((rec["system"], rec["trial"]))
-        run.warnings += rec.get("detail") is not None
-        if on_trial:
-            on_trial(rec)
-
-    def failed(system: str, index: int, reason: str, detail: str) -> dict[str, Any]:
-        return trial_record(system, index, scenario.trials[index], plan.seed, success=False, reason=reason, detail=detail[:300])
-
-    for name in plan.systems:
-        if "error" in plan.mapping[name]:
-            run.failed_stages[name] = ("mapping", plan.mapping[name]["error"])
-    jobs = []
-    for name in plan.systems:
-        pending = [i for i in range(trial_count or 0) if (name, i) not in done]
-        if not pending or name in run.failed_stages:
-            continue
-        chunks = [pending[k::slots] for k in range(slots)]
-        archive = pack_dir(run.map_dir(name))
-        for k, chunk in enumerate(c for c in chunks if c):
-            jobs.append(
-                TrialJob(
-                    scenario=plan.files,
-                    system=name,
-                    config=plan.configs[name],
-                    map_archive=archive,
-                    trials=chunk,
-                    seed=plan.seed,
-                    measure_memory=(k == 0 and not (run.root / "navigation" / f"{name}.json").is_file()),
-                    setting=plan.setting,
-                    protocol=plan.protocol.as_json(),
-                    anchors=plan.mapping[name].get("anchors"),
-                    trial_wall_s=options.trial_wall_s,
-                    trial_memory_mb=options.trial_memory_mb,
-                    modules=modules_of(get_system(name)),
-                )
-            )
+    stage = NavigationStage(run, plan, options, on_trial)
+    jobs = stage.jobs(slots)
     if not jobs:
         return
     say("navigation", sum(len(j.trials) for j in jobs))
-    started: dict[int, int] = {}  # job number -> the trial it started last
     numbers = itertools.count()
     submit: list[Submission] = [((next(numbers), job), trial_job, job) for job in jobs]
     running = 0
@@ -402,62 +384,134 @@ def navigate(
         running += len(submit)
         event = yield submit
         submit = []
-        (number, job), message = event.key, event.message
-        if message is not None:
-            if message["kind"] == "started":
-                started[number] = message["trial"]
-            elif message["kind"] == "trial":
-                record(message, event.worker)
-            elif message["kind"] == "memory":
-                write_json(run.root / "navigation" / f"{job.system}.json", message["report"])
-            elif message["kind"] == "map_load_error":  # no trial ran: a failed stage, not failed trials
-                run.failed_stages.setdefault(
-                    job.system, ("navigation", f"the map in {run.map_dir(job.system)} cannot be loaded: {message['detail']}")
-                )
+        number, job = event.key
+        if event.message is not None:
+            stage.on_message(number, job, event.message, event.worker)
             continue
         running -= 1
-        unrun = [i for i in job.trials if (job.system, i) not in done]
-        if event.failure is None or not unrun or job.system in run.failed_stages:
-            continue
-        kind, detail = event.failure.kind, event.failure.detail
-        if kind == "error":  # the job raised outside a trial (trials catch their own): its trials fail
-            for index in unrun:
-                record(failed(job.system, index, "error", detail), event.worker)
-            continue
-        # crashed or timeout: the trial that was running fails; if the worker died before its first
-        # trial, that first trial fails (so that a job that cannot start does not come back for
-        # ever); between two trials, no trial is to blame. The rest runs in a fresh process.
-        current = started.get(number)
-        culprit = current if current in unrun else (unrun[0] if current is None else None)
-        if culprit is not None:
-            if kind == "crashed" and options.trial_memory_mb is not None:
-                detail += f" (under --trial-memory-mb {options.trial_memory_mb:g}: perhaps out of memory)"
-            record(failed(job.system, culprit, kind, detail), event.worker)
-        rest = [i for i in unrun if i != culprit]
-        if rest:
-            retry = dataclasses.replace(job, trials=rest)
+        retry = stage.on_end(number, job, event)
+        if retry is not None:
             submit.append(((next(numbers), retry), trial_job, retry))
 
 
-class MapsFromError(ValueError):
+class NavigationStage:
+    """The navigation stage of one run, as its jobs report: the trials done (on disk before, or
+    recorded since), the trial each job started last, the failed stages."""
+
+    def __init__(
+        self, run: RunDir, plan: TrialPlan, options: RunOptions, on_trial: Callable[[TrialRecord], None] | None
+    ) -> None:
+        self.run, self.plan, self.options, self.on_trial = run, plan, options, on_trial
+        run.repair_trials()
+        self.done = {(r.system, r.trial) for r in run.read_trials()}
+        self.started: dict[int, int] = {}  # job number -> the trial it started last
+        run.failed_stages = {}
+        run.warnings = 0
+
+    def jobs(self, slots: int) -> list[TrialJob]:
+        """The trials not done yet of each system whose map is there, in chunks, a job each."""
+        run, plan = self.run, self.plan
+        for name in plan.systems:
+            error = plan.mapping[name].error
+            if error is not None:
+                run.failed_stages[name] = ("mapping", error)
+        jobs = []
+        for name in plan.systems:
+            pending = [i for i in range(plan.trial_count or 0) if (name, i) not in self.done]
+            if not pending or name in run.failed_stages:
+                continue
+            chunks = [pending[k::slots] for k in range(slots)]
+            archive = pack_dir(run.map_dir(name))
+            for k, chunk in enumerate(c for c in chunks if c):
+                jobs.append(
+                    TrialJob(
+                        scenario=plan.files,
+                        system=name,
+                        config=plan.configs[name],
+                        map_archive=archive,
+                        trials=chunk,
+                        seed=plan.seed,
+                        measure_memory=(k == 0 and not run.navigation_path(name).is_file()),
+                        setting=plan.setting,
+                        protocol=plan.protocol.as_json(),
+                        anchors=plan.mapping[name].anchors,
+                        trial_wall_s=self.options.trial_wall_s,
+                        trial_memory_mb=self.options.trial_memory_mb,
+                        modules=modules_of(get_system(name)),
+                    )
+                )
+        return jobs
+
+    def record(self, record: TrialRecord, worker: dict[str, Any] | None, message: dict[str, Any] | None = None) -> None:
+        """A trial is done: its record (with its trajectories, from a ``trial`` message) written."""
+        record.worker = worker
+        if message is not None:
+            write_trial(self.run, self.plan.scenario, message)
+        else:
+            self.run.append_trial(record)
+        self.done.add((record.system, record.trial))
+        self.run.warnings += record.detail is not None
+        if self.on_trial:
+            self.on_trial(record)
+
+    def failed(self, system: str, index: int, reason: str, detail: str) -> TrialRecord:
+        """The record of a trial its worker did not finish (the worker crashed, or ran out of time)."""
+        trial = self.plan.scenario.trials[index]
+        return trial_record(system, index, trial, self.plan.seed, success=False, reason=reason, detail=detail[:300])
+
+    def on_message(self, number: int, job: TrialJob, message: dict[str, Any], worker: dict[str, Any] | None) -> None:
+        if message["kind"] == "started":
+            self.started[number] = message["trial"]
+        elif message["kind"] == "trial":
+            self.record(message["record"], worker, message)
+        elif message["kind"] == "memory":
+            write_json(self.run.navigation_path(job.system), message["report"])
+        elif message["kind"] == "map_load_error":  # no trial ran: a failed stage, not failed trials
+            why = f"the map in {self.run.map_dir(job.system)} cannot be loaded: {message['detail']}"
+            self.run.failed_stages.setdefault(job.system, ("navigation", why))
+
+    def on_end(self, number: int, job: TrialJob, event: Event) -> TrialJob | None:
+        """A job ended: if it failed, the trial it was running is recorded as failed and the rest of
+        its trials come back as a new job (returned)."""
+        unrun = [i for i in job.trials if (job.system, i) not in self.done]
+        if event.failure is None or not unrun or job.system in self.run.failed_stages:
+            return None
+        kind, detail = event.failure.kind, event.failure.detail
+        if kind == "error":  # the job raised outside a trial (trials catch their own): its trials fail
+            for index in unrun:
+                self.record(self.failed(job.system, index, "error", detail), event.worker)
+            return None
+        # crashed or timeout: the trial that was running fails; if the worker died before its first
+        # trial, that first trial fails (so that a job that cannot start does not come back for
+        # ever); between two trials, no trial is to blame. The rest runs in a fresh process.
+        current = self.started.get(number)
+        culprit = current if current in unrun else (unrun[0] if current is None else None)
+        if culprit is not None:
+            if kind == "crashed" and self.options.trial_memory_mb is not None:
+                detail += f" (under --trial-memory-mb {self.options.trial_memory_mb:g}: perhaps out of memory)"
+            self.record(self.failed(job.system, culprit, kind, detail), event.worker)
+        rest = [i for i in unrun if i != culprit]
+        return dataclasses.replace(job, trials=rest) if rest else None
+
+
+class MapsFromError(BenchError):
     """--maps-from names a run whose maps cannot serve this one."""
+
+    exit_code = 2  # an input refused
 
 
 def check_maps_from(source: Path, scenario: Scenario, seed: int, setting: str, systems: list[str]) -> None:
     """Refuse a source run of another scenario (file), seed or setting, or without a system's map."""
-    manifest_path = source / "manifest.json"
     try:
-        manifest = read_json(manifest_path)
-    except (OSError, ValueError) as exc:
-        raise MapsFromError(f"{manifest_path}: not a readable run manifest ({exc})") from None
-    if not isinstance(manifest, dict):
-        raise MapsFromError(f"{manifest_path}: not a run manifest")
-    if manifest.get("scenario_sha256") != scenario_fingerprint(scenario):
+        manifest = Manifest.read(source / "manifest.json")
+    except RunFormatError as exc:
+        raise MapsFromError(str(exc)) from None  # names the file and why
+    if manifest.scenario_sha256 != scenario_fingerprint(scenario):
         raise MapsFromError(f"{source}: mapped another scenario (or the scenario file changed since)")
-    if manifest.get("seed") != seed or manifest.get("setting", "precise") != setting:
+    mapped_in = manifest.given("setting", "precise")  # runs from before the settings were precise
+    if manifest.seed != seed or mapped_in != setting:
         raise MapsFromError(
-            f"{source}: mapped with seed {manifest.get('seed')} in setting {manifest.get('setting')}, "
-            f"not seed {seed} in setting {setting}"
+            f"{source}: mapped with seed {manifest.seed} in setting {manifest.setting}, not seed {seed} in setting {setting}"
         )
     for name in systems:
         report = source / "mapping" / f"{name}.json"
@@ -465,23 +519,23 @@ def check_maps_from(source: Path, scenario: Scenario, seed: int, setting: str, s
             raise MapsFromError(f"{source}: holds no map of {name!r} (mapping/{name}.json or maps/{name} missing)")
 
 
-def reuse_maps(source: Path, run: RunDir, systems: list[str], manifest_of_run: dict[str, Any]) -> None:
-    """Copy the maps and mapping reports of ``source`` into ``run`` (its mapping stage then skips them)."""
+def reuse_maps(source: Path, run: RunDir, systems: list[str], manifest: Manifest) -> None:
+    """Copy the maps and mapping reports of ``source`` into ``run`` (its mapping stage then skips
+    them); both say where they came from (``maps_from``)."""
     for name in systems:
         shutil.copytree(source / "maps" / name, run.map_dir(name), dirs_exist_ok=True)
-        report = read_json(source / "mapping" / f"{name}.json")
-        report["maps_from"] = str(source)
+        report = MappingReport.read(source / "mapping" / f"{name}.json")
+        report.maps_from = str(source)
         write_json(run.mapping_path(name), report)
-    write_json(run.manifest_path, {**manifest_of_run, "maps_from": str(source)})
+    manifest.maps_from = str(source)
+    write_json(run.manifest_path, manifest)
 
 
-def write_summary(run: RunDir, systems: list[str], mapping: dict[str, dict]) -> dict[str, Any]:
+def write_summary(run: RunDir, systems: list[str], mapping: dict[str, MappingReport]) -> dict[str, SystemSummary]:
     records = run.read_trials()
-    navigation = {}
-    for name in systems:
-        nav_path = run.root / "navigation" / f"{name}.json"
-        navigation[name] = read_json(nav_path) if nav_path.is_file() else {}
+    reports = {name: run.navigation_path(name) for name in systems}
+    navigation = {name: NavigationReport.read(path) for name, path in reports.items() if path.is_file()}
     summary = summarize(records, mapping, navigation)
-    summary = {name: summary.get(name, {}) for name in systems}
+    summary = {name: summary.get(name, SystemSummary()) for name in systems}
     write_json(run.summary_path, summary)
     return summary

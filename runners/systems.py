@@ -53,6 +53,7 @@ __all__ = [
     "register_system",
     "registry",
     "get_system",
+    "import_modules",
 ]
 
 
@@ -92,7 +93,7 @@ class NavigationSystem(Protocol):
 @dataclass
 class SystemEntry:
     name: str
-    cls: type
+    cls: type[Any]  # the system's class: create, load (classmethods), optional warm_up and disk_usage
     config_model: type[BaseModel]
     privileged: bool = False
     wants_initial_pose: bool = False
@@ -180,6 +181,15 @@ def get_system(name: str) -> SystemEntry:
     if name not in _REGISTRY:
         raise KeyError(f"unknown system {name!r} (known: {', '.join(system_names())})")
     return _REGISTRY[name]
+
+
+def import_modules(modules: list[str]) -> None:
+    """Import the modules that register a job's systems (those registered outside this module,
+    e.g. by a test): a worker process knows only the built-in ones."""
+    import importlib
+
+    for module in modules:
+        importlib.import_module(module)
 
 
 # ---------------------------------------------------------------------------------------------

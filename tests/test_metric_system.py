@@ -14,8 +14,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from baselines.metric_grid.occupancy import GridMap
-from baselines.metric_grid.system import MapLoadError, MetricGrid, MetricGridConfig
+from baselines.metric_grid.system import MetricGrid, MetricGridConfig, MetricMapError
 from navkit import geometry as se2
+from navkit.errors import BenchError
 from navkit.follower import FollowerConfig, PathFollower
 from navkit.raster import FREE, OCCUPIED
 from runners.navigation import run_one_trial
@@ -115,10 +116,12 @@ def test_a_damaged_map_folder_fails_with_one_message_naming_the_file(mapped, con
     copy = tmp_path / "map"
     shutil.copytree(directory, copy)
     damage(copy)
-    with pytest.raises(MapLoadError) as error:
+    with pytest.raises(MetricMapError) as error:
         MetricGrid.load(copy, MetricGridConfig(), context)
     message = str(error.value)
     assert named in message and "\n" not in message
+    # an input refused (exit code 2) that callers catching ValueError still catch
+    assert isinstance(error.value, BenchError) and error.value.exit_code == 2 and isinstance(error.value, ValueError)
 
 
 def _densify(path: np.ndarray, step: float = 0.02) -> np.ndarray:
@@ -153,9 +156,9 @@ def test_a_navigation_trial_on_tiny_reaches_the_goal_efficiently(tiny, sim, mapp
     entry = get_system("metric_grid")
     system = MetricGrid.load(directory, MetricGridConfig(), context)
     record, rows, estimate = run_one_trial(tiny, sim, entry, system, tiny.trials[0], 0, 0)
-    assert record["success"], record["reason"]
-    assert record["collisions"] == 0 and record["efficiency"] >= 0.95
-    assert record["planning_ms"]["count"] >= 2  # replanned at the fixed rate
+    assert record.success, record.reason
+    assert record.collisions == 0 and record.efficiency >= 0.95
+    assert record.planning_ms.count >= 2  # replanned at the fixed rate
     # the tracked pose (map frame) follows the true one within 10 cm: registration follows the map,
     # whose far end (seen from few keyframes of this half route) stands ~5 cm off ground truth
     true_in_map = np.array([se2.between(tiny.route_start, row[1:4]) for row in rows])
@@ -239,7 +242,7 @@ def test_an_obstacle_missing_from_the_map_is_seen_and_driven_around(tiny, sim, m
     near_cabinet = (world_path[:, 0] < 11.45 + tiny.spec.robot.radius) & (np.abs(world_path[:, 1] - 3.0) < 0.5)
     assert near_cabinet.any(), "the test needs a first path that runs into the erased cabinet"
     record, _, _ = run_one_trial(tiny, sim, get_system("metric_grid"), system, trial, 0, 0)
-    assert record["success"] and record["collisions"] == 0, record["reason"]
+    assert record.success and record.collisions == 0, record.reason
     assert system.counters["replans_blocked"] >= 1
     assert system.status.state == Status.REACHED
     json.dumps(system.stats())  # stats are plain JSON

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from reports.records import MappingReport, NavigationReport, Stats
 from runners.metrics import (
     edge_errors,
     efficiency,
@@ -74,21 +75,21 @@ def test_efficiency_is_capped_at_one():
 
 def test_a_successful_record_has_efficiency_spl_and_efficiency_to_goal():
     record = trial_record("x", 3, TRIAL, 7, success=True, reason="", travelled_m=12.5, final_distance_m=0.3)
-    assert record["efficiency"] == pytest.approx(0.8) and record["spl"] == pytest.approx(0.8)
-    assert record["efficiency_to_goal"] == pytest.approx(10.0 / 12.8, abs=1e-6)
-    assert record["start"] == [0.0, 0.0, 90.0] and record["goal"] == [10.0, 0.0]
-    assert record["trial"] == 3 and record["seed"] == 7
+    assert record.efficiency == pytest.approx(0.8) and record.spl == pytest.approx(0.8)
+    assert record.efficiency_to_goal == pytest.approx(10.0 / 12.8, abs=1e-6)
+    assert record.start == [0.0, 0.0, 90.0] and record.goal == [10.0, 0.0]
+    assert record.trial == 3 and record.seed == 7
 
 
 def test_a_failed_record_has_no_efficiency_and_zero_spl():
     record = trial_record("x", 0, TRIAL, 7, success=False, reason="timeout", travelled_m=30.0)
-    assert record["efficiency"] is None and record["spl"] == 0.0 and record["efficiency_to_goal"] is None
+    assert record.efficiency is None and record.spl == 0.0 and record.efficiency_to_goal is None
 
 
 def test_planning_statistics_of_hand_made_samples():
     stats = stats_ms([1.0, 2.0, 3.0, 4.0, 100.0])
-    assert stats == {"median": 3.0, "mean": 22.0, "p95": pytest.approx(80.8), "max": 100.0, "count": 5}
-    assert stats_ms([]) == {"median": None, "mean": None, "p95": None, "max": None, "count": 0}
+    assert stats.as_json() == {"median": 3.0, "mean": 22.0, "p95": pytest.approx(80.8), "max": 100.0, "count": 5}
+    assert stats_ms([]).as_json() == {"median": None, "mean": None, "p95": None, "max": None, "count": 0}
 
 
 def _record(system, trial, success, travelled, planning, first=None, memory=None, tracking=None, reason="timeout"):
@@ -115,56 +116,64 @@ def test_summary_means_efficiency_over_successes_and_spl_over_all_trials():
         _record("a", 2, False, 40.0, [9.0], first=9.0, reason="collision"),  # failure: SPL 0
         _record("a", 3, False, 3.0, [], reason="collision"),
     ]
-    summary = summarize(records, {"a": {"ms_per_scan": {"median": 2.0}}}, {"a": {"map_load_ms": 12.5}})["a"]
-    assert summary["trials"] == 4 and summary["successes"] == 2 and summary["success_rate"] == 0.5
-    assert summary["efficiency_mean"] == pytest.approx(0.9)
-    assert summary["spl_mean"] == pytest.approx((1.0 + 0.8) / 4)
+    mapping = {"a": MappingReport(ms_per_scan=Stats(median=2.0))}
+    summary = summarize(records, mapping, {"a": NavigationReport(map_load_ms=12.5)})["a"]
+    assert summary.trials == 4 and summary.successes == 2 and summary.success_rate == 0.5
+    assert summary.efficiency_mean == pytest.approx(0.9)
+    assert summary.spl_mean == pytest.approx((1.0 + 0.8) / 4)
     # every planning call of every trial, and the first plans apart
-    assert summary["planning_ms"]["count"] == 6 and summary["planning_ms"]["median"] == pytest.approx(3.0)
-    assert summary["first_plan_ms"]["count"] == 3 and summary["first_plan_ms"]["median"] == 7.0
-    assert summary["map_load_ms"] == 12.5
-    assert summary["failure_reasons"] == {"collision": 2}
-    assert summary["mapping_ms_per_scan"] == {"median": 2.0}
+    assert summary.planning_ms.count == 6 and summary.planning_ms.median == pytest.approx(3.0)
+    assert summary.first_plan_ms.count == 3 and summary.first_plan_ms.median == 7.0
+    assert summary.map_load_ms == 12.5
+    assert summary.failure_reasons == {"collision": 2}
+    assert summary.as_json()["mapping_ms_per_scan"] == {"median": 2.0}
 
 
 def test_summary_figures_are_null_not_nan_when_nothing_succeeds():
     records = [_record("b", 0, False, 5.0, []), _record("b", 1, False, 5.0, [])]
     summary = summarize(records, {})
-    text = json.dumps(summary, allow_nan=False)  # would raise on NaN
+    text = json.dumps({name: s.as_json() for name, s in summary.items()}, allow_nan=False)  # would raise on NaN
     assert "NaN" not in text
     b = summary["b"]
-    assert b["success_rate"] == 0.0 and b["efficiency_mean"] is None and b["spl_mean"] == 0.0
-    assert b["planning_ms"]["median"] is None and b["first_plan_ms"]["count"] == 0
-    assert b["tracking_error_m"] is None
-    assert b["memory"]["total"] is None
+    assert b.success_rate == 0.0 and b.efficiency_mean is None and b.spl_mean == 0.0
+    assert b.planning_ms.median is None and b.first_plan_ms.count == 0
+    assert b.tracking_error_m is None
+    assert b.memory.total is None
 
 
 def test_memory_summary_takes_each_parts_peak_and_the_workers_rss():
     small = {"map": 100, "localization": 10, "derived": 0, "model": 5, "total": 115}
     grown = {"map": 100, "localization": 40, "derived": 30, "model": 5, "total": 175}
     records = [_record("c", 0, True, 10.0, [1.0], memory=small), _record("c", 1, True, 10.0, [1.0], memory=grown)]
-    navigation = {"rss_bytes": 1000, "rss_process_bytes": 9000, "disk_bytes": 77, "disk": {"map": 70}, "memory": small}
-    memory = summarize(records, {"c": {"map_bytes": 100}}, {"c": navigation})["c"]["memory"]
-    assert (memory["map"], memory["localization"], memory["derived"], memory["model"], memory["total"]) == (100, 40, 30, 5, 175)
-    assert memory["rss_bytes"] == 1000 and memory["rss_process_bytes"] == 9000
-    assert memory["disk_bytes"] == 77 and memory["disk"] == {"map": 70} and memory["map_bytes"] == 100
+    navigation = NavigationReport.model_validate(
+        {"rss_bytes": 1000, "rss_process_bytes": 9000, "disk_bytes": 77, "disk": {"map": 70}, "memory": small}
+    )
+    memory = summarize(records, {"c": MappingReport(map_bytes=100)}, {"c": navigation})["c"].memory
+    assert (memory.map, memory.localization, memory.derived, memory.model, memory.total) == (100, 40, 30, 5, 175)
+    assert memory.rss_bytes == 1000 and memory.rss_process_bytes == 9000
+    assert memory.disk_bytes == 77 and memory.as_json()["disk"] == {"map": 70} and memory.map_bytes == 100
 
 
 def test_tracking_error_per_trial_and_over_trials():
     one = _record("d", 0, True, 10.0, [1.0], tracking=[0.0, 0.1, 0.2, 0.3, 0.04])
-    assert one["tracking_error_m"] == {"median": 0.1, "p95": pytest.approx(0.28), "max": 0.3, "final": 0.04}
+    assert one.tracking_error_m == {"median": 0.1, "p95": pytest.approx(0.28), "max": 0.3, "final": 0.04}
     two = _record("d", 1, True, 10.0, [1.0], tracking=[0.5, 0.5, 0.5])
-    summary = summarize([one, two], {})["d"]["tracking_error_m"]
-    assert summary["median"] == pytest.approx(0.3) and summary["max"] == 0.5 and summary["final_median"] == pytest.approx(0.27)
+    summary = summarize([one, two], {})["d"].tracking_error_m
+    assert (
+        summary is not None
+        and summary["median"] == pytest.approx(0.3)
+        and summary["max"] == 0.5
+        and summary["final_median"] == pytest.approx(0.27)
+    )
 
 
 def test_edge_errors_compare_each_edge_with_the_true_relative_pose():
     truth = {0.0: np.array([0.0, 0.0, 0.0]), 1.0: np.array([2.0, 0.0, np.pi / 2])}
     exact = edge_errors([(0.0, 1.0, [2.0, 0.0, np.pi / 2])], truth)
-    assert exact["translation_m"]["max"] == 0.0 and exact["rotation_deg"]["max"] == 0.0 and exact["count"] == 1
+    assert exact.translation_m.max == 0.0 and exact.rotation_deg.max == 0.0 and exact.count == 1
     off = edge_errors([(0.0, 1.0, [2.3, 0.4, np.pi / 2 + np.radians(2.0)]), (0.0, 9.0, [0, 0, 0])], truth)
-    assert off["translation_m"]["max"] == pytest.approx(0.5) and off["rotation_deg"]["max"] == pytest.approx(2.0)
-    assert off["count"] == 1  # an edge whose stamps have no true pose is left out
+    assert off.translation_m.max == pytest.approx(0.5) and off.rotation_deg.max == pytest.approx(2.0)
+    assert off.count == 1  # an edge whose stamps have no true pose is left out
 
 
 def test_late_locations_count_as_revisits_only_where_the_first_half_had_been():

@@ -167,18 +167,18 @@ def test_cold_starts_localize_without_a_pose_and_reach_goals_in_other_locations(
         map_dir=str(run.map_dir("navtopo")),
         trials=[0, 1],
         seed=tiny.spec.seed,
-        anchors=report["anchors"],
+        anchors=report.anchors,
     )
     records = run_trial_job(job)["records"]
     for record in records:
-        assert record["success"], record["reason"]
-        assert record["efficiency"] >= 0.9
-        localized = record["startup_localization"]
+        assert record.success, record.reason
+        assert record.efficiency >= 0.9
+        localized = record.startup_localization
         assert localized["right"] and localized["error_m"] < 0.2 and localized["seconds"] <= 10.0
-        assert record["goal_conversion_error_m"] < 0.05  # precise odometry: the hints are the truth
-        assert record["tracking_error_m"]["max"] < 0.3
+        assert record.goal_conversion_error_m < 0.05  # precise odometry: the hints are the truth
+        assert record.tracking_error_m["max"] < 0.3
     # the goals lie in other locations than the starts: the goal server routed over the graph
-    anchors = np.array([row[1:3] for row in report["anchors"]])
+    anchors = np.array([row[1:3] for row in report.anchors])
     for trial in tiny.trials[:2]:
         start_vertex = int(np.argmin(np.hypot(*(anchors - trial.start[:2]).T)))
         goal_vertex = int(np.argmin(np.hypot(*(anchors - trial.goal).T)))
@@ -199,12 +199,12 @@ def test_the_papers_goal_form_names_the_location_the_goal_lies_in(tiny, tiny_gra
         map_dir=str(run.map_dir("navtopo")),
         trials=[2],
         seed=tiny.spec.seed,
-        anchors=report["anchors"],
+        anchors=report.anchors,
         protocol=TrialProtocol(goals="native").as_json(),
     )
     record = run_trial_job(job)["records"][0]
-    assert record["success"], record["reason"]
-    assert record["goal_conversion_error_m"] < 1e-6  # given in the location's own frame: nothing to convert
+    assert record.success, record.reason
+    assert record.goal_conversion_error_m < 1e-6  # given in the location's own frame: nothing to convert
 
 
 def test_a_goal_estimated_into_a_wall_is_approached_never_driven_into():

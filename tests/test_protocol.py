@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 
 from navkit import geometry as se2
 from navkit.types import Command, MemoryBreakdown, NavStatus, Observation, Status
+from reports.records import TrialRecord
 from runners.cli import app
 from runners.mapping import MappingSystem, context_for, run_mapping
 from runners.navigation import TrialJob, run_trial_job
@@ -145,7 +146,7 @@ def test_a_non_privileged_system_is_told_nothing_derived_from_ground_truth(tiny,
     )
     Spy.seen.clear()
     result = run_trial_job(job)
-    assert [r["success"] for r in result["records"]] == [False, False]  # declared reached far from the goals
+    assert [r.success for r in result["records"]] == [False, False]  # declared reached far from the goals
     contexts = [v for kind, v in Spy.seen if kind == "context"]
     assert contexts and all(c.ground_truth is None for c in contexts)
     for context in contexts:
@@ -201,7 +202,7 @@ def test_a_system_that_takes_an_initial_pose_gets_the_start_with_the_seeded_erro
         assert 0.0 < np.hypot(error[0], error[1]) and np.all(np.abs(error[:2]) <= 0.5)
         assert abs(error[2]) <= np.radians(10.0)
         assert np.allclose(error, protocol.initial_pose_error(5, trial.index))
-        assert record["initial_pose_error"] == pytest.approx([error[0], error[1], np.degrees(error[2])], abs=1e-3)
+        assert record.initial_pose_error == pytest.approx([error[0], error[1], np.degrees(error[2])], abs=1e-3)
     # the same (seed, trial) gives the same error, whatever ran before; another seed, another error
     assert np.allclose(protocol.initial_pose_error(5, 2), TrialProtocol().initial_pose_error(5, 2))
     assert not np.allclose(protocol.initial_pose_error(5, 2), protocol.initial_pose_error(6, 2))
@@ -209,8 +210,8 @@ def test_a_system_that_takes_an_initial_pose_gets_the_start_with_the_seeded_erro
     assert np.array_equal(exact.initial_pose_error(5, 2), np.zeros(3))
 
 
-def _without_timing(record: dict) -> dict:
-    return {k: v for k, v in record.items() if k not in TIMING}
+def _without_timing(record: TrialRecord) -> dict:
+    return {k: v for k, v in record.as_json().items() if k not in TIMING}
 
 
 def test_two_trials_in_one_worker_give_what_each_gives_alone(tiny, mapped):
@@ -220,7 +221,7 @@ def test_two_trials_in_one_worker_give_what_each_gives_alone(tiny, mapped):
     config = get_system("metric_grid").default_config().model_dump(mode="json")
     both = run_trial_job(TrialJob.packed(config=config, trials=[0, 1], **common))["records"]
     alone = run_trial_job(TrialJob.packed(config=config, trials=[1], **common))["records"]
-    assert both[1]["success"] and alone[0]["success"]
+    assert both[1].success and alone[0].success
     assert _without_timing(both[1]) == _without_timing(alone[0])
 
 

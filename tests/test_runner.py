@@ -144,7 +144,7 @@ def test_maps_from_an_earlier_run_skips_mapping_and_refuses_another_seed(tmp_pat
         and mapping["scans"] == json.loads((first / "mapping" / "oracle.json").read_text())["scans"]
     )
     assert "mapping tiny" not in result.output  # no route was driven
-    assert [r["trial"] for r in RunDir(second).read_trials()] == [0]
+    assert [r.trial for r in RunDir(second).read_trials()] == [0]
     refused = CliRunner().invoke(
         app, ["run", "tiny", "--systems", "oracle", "--seed", "5", "--maps-from", str(first), "--out", str(tmp_path / "x")]
     )

@@ -271,7 +271,7 @@ def test_ctrl_c_during_several_runs_exits_130_naming_each_unfinished_run_and_eac
     unfinished = [folder for folder in folders if not (folder / "summary.json").is_file()]
     assert unfinished and all(f"--resume {folder}" in errors[0] for folder in unfinished)
     for folder in unfinished:
-        before = {(r["system"], r["trial"]): r for r in RunDir(folder).read_trials()}  # perhaps none yet
+        before = {(r.system, r.trial): r.as_json() for r in RunDir(folder).read_trials()}  # perhaps none yet
         result = CliRunner().invoke(app, ["run", "--resume", str(folder), "--workers", "2"])
         assert result.exit_code == 0, result.output
         after = records_of(folder)
@@ -356,7 +356,7 @@ def _kill_driver_mid_run(out: Path, *flags: str) -> list[dict]:
     if process.poll() is None:
         os.kill(process.pid, signal.SIGKILL)  # the driver only: its workers must notice and end
     process.wait()
-    return list(RunDir(out).read_trials())
+    return [r.as_json() for r in RunDir(out).read_trials()]
 
 
 @pytest.mark.parametrize(
@@ -415,7 +415,7 @@ def test_jobs_carry_content_not_paths(tmp_path):
     path.unlink()
     (out / "maps" / "oracle" / "oracle.json").unlink()
     record = run_trial_job(job)["records"][0]
-    assert record["success"] and np.isfinite(record["travelled_m"])
+    assert record.success and np.isfinite(record.travelled_m)
 
 
 @pytest.mark.ray

@@ -1,7 +1,8 @@
 """Drive scenarios' mapping routes with the simulator's kinematics and collision checks only.
 
-The robot is driven as ``runners.mapping`` drives it (the shared follower on the true pose, the
-same goal tolerance and stuck rule) but no lidar scan is cast, so a 1 km route takes seconds.
+The robot is driven as the mapping stage drives it (``runners.route.RouteDrive``: the shared
+follower on the true pose, the same goal tolerance and stuck rule) but no lidar scan is cast, so a
+1 km route takes seconds.
 Prints per scenario: route length, whether it was completed, collisions, the least margin
 between the robot and a wall along the way (clearance minus radius, on the GT raster), the
 simulated and the wall-clock time of the drive.
@@ -18,9 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from navkit.follower import FollowerConfig, PathFollower
-from runners.mapping import ROUTE_GOAL_TOLERANCE_M, STUCK_S
-from runners.sim import MAPPING_STREAM, Simulator
+from runners.route import RouteDrive
+from runners.sim import Simulator
 from scenarios import Scenario, bundled_names, load_scenario
 
 
@@ -50,31 +50,17 @@ def drive_route(scenario: Scenario) -> Drive:
     robot = scenario.spec.robot
     t0 = time.perf_counter()
     with Simulator(scenario) as sim:
-        sim.reset(scenario.route_start, stream=(MAPPING_STREAM,))
-        follower = PathFollower(
-            FollowerConfig(max_linear=robot.max_linear, max_angular=robot.max_angular, goal_tolerance=ROUTE_GOAL_TOLERANCE_M)
-        )
-        follower.set_path(scenario.route)
-        max_ticks = int((3.0 * scenario.route_length_m / robot.max_linear + 600.0) * scenario.spec.sensor.rate_hz)
-        mark, mark_time = -1.0, 0.0
-        stuck = False
-        for _ in range(max_ticks):
-            command = follower.command(sim.true_pose)
-            if follower.reached:
-                break
-            if follower.progress > mark + 0.1:
-                mark, mark_time = follower.progress, sim.time
-            elif sim.time - mark_time > STUCK_S:
-                stuck = True
-                break
-            sim.step(command)
+        drive = RouteDrive(scenario, sim)
+        for _ in drive.ticks():
+            pass  # no scan: the drive alone
+        stuck = drive.ending == "stuck"
         trajectory = sim.trajectory_array()
         margins = scenario.world.clearances_at(trajectory[:, 1:3]) - robot.radius
         k = int(np.argmin(margins)) if not stuck else len(trajectory) - 1
         return Drive(
             name=scenario.name,
             route_m=scenario.route_length_m,
-            completed=follower.reached and not stuck,
+            completed=drive.ending == "reached",
             collisions=sim.collisions,
             travelled_m=sim.travelled_m,
             least_margin_m=float(margins.min()),

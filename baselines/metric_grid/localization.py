@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import geometry as se2
-from navkit.raster import FREE, OCCUPIED
+from navkit.raster import FREE, OCCUPIED, GridFrame
 
 from .occupancy import GridMap
 
@@ -181,6 +181,18 @@ class RelocalizationConfig(BaseModel):
     lost_after: int = Field(15, ge=1, description="consecutive rejected tracking fits before the window search runs again")
 
 
+def _square(centre_xy: NDArray, half: float, step: float) -> NDArray[np.float64]:
+    """(M, 2) candidate positions every ``step`` metres up to ``half`` either side of ``centre_xy``
+    along x and y (both ends included)."""
+    offsets = np.arange(-half, half + 1e-9, step)
+    return np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2) + centre_xy
+
+
+def _headings(centre_yaw: float, half_deg: float, step_deg: float) -> NDArray[np.float64]:
+    """Candidate headings (rad) every ``step_deg`` up to ``half_deg`` either side of ``centre_yaw``."""
+    return centre_yaw + np.radians(np.arange(-half_deg, half_deg + 1e-9, step_deg))
+
+
 class Relocalizer:
     """Correlative search of the map for the pose of a scan, around a guess or everywhere."""
 
@@ -265,9 +277,8 @@ class Relocalizer:
         points = self._subsample(points)
         if len(points) < 20:
             return None
-        offsets = np.arange(-c.window_xy, c.window_xy + 1e-9, self.resolution)
-        positions = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2) + guess[:2]
-        yaws = guess[2] + np.radians(np.arange(-c.window_yaw_deg, c.window_yaw_deg + 1e-9, c.step_yaw_deg))
+        positions = _square(guess[:2], c.window_xy, self.resolution)
+        yaws = _headings(guess[2], c.window_yaw_deg, c.step_yaw_deg)
         scores = self._scores(points, positions, yaws)
         # inside the window two candidates a metre apart are rarely different places: refine the
         # best few and let the fit decide, with the rival check over the whole set
@@ -283,7 +294,7 @@ class Relocalizer:
             step = max(int(round(c.global_step_xy / self.resolution)), 1)
             rows, cols = np.nonzero(self._fits[::step, ::step])
             cells = np.stack([rows * step, cols * step], axis=1)
-            self._global_positions = self.origin + (cells[:, ::-1] + 0.5) * self.resolution
+            self._global_positions = GridFrame(self.origin, self.resolution).to_world(cells)
         positions = self._global_positions
         if not len(positions):
             return None
@@ -294,9 +305,8 @@ class Relocalizer:
         fine_points = self._subsample(points)
         candidates = []
         for seed in seeds:
-            offsets = np.arange(-c.global_step_xy / 2, c.global_step_xy / 2 + 1e-9, self.resolution)
-            window = np.stack(np.meshgrid(offsets, offsets, indexing="ij"), axis=-1).reshape(-1, 2) + seed[:2]
-            yaw_window = seed[2] + np.radians(np.arange(-c.global_step_yaw_deg, c.global_step_yaw_deg + 1e-9, 1.0))
+            window = _square(seed[:2], c.global_step_xy / 2, self.resolution)
+            yaw_window = _headings(seed[2], c.global_step_yaw_deg, 1.0)
             fine = self._scores(fine_points, window, yaw_window)
             k, i = np.unravel_index(int(np.argmax(fine)), fine.shape)
             candidates.append(np.array([window[i, 0], window[i, 1], yaw_window[k]]))

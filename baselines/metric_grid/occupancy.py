@@ -22,22 +22,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from navkit import geometry as se2
-from navkit.files import atomic_write
-from navkit.raster import FREE, OCCUPIED, UNKNOWN
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside, read_map_server, trinary_image, write_map_server
 from navkit.scan import MAX_GAP_DEG, trace_scan
 
 from .scan2d import free_endpoints
-
-PGM_OCCUPIED, PGM_FREE, PGM_UNKNOWN = 0, 254, 205
 
 
 class OccupancyConfig(BaseModel):
@@ -76,110 +73,33 @@ class GridMap:
         """Bytes of the cells, the origin and the resolution."""
         return int(self.cells.nbytes + self.origin.nbytes + 8)
 
+    @property
+    def frame(self) -> GridFrame:
+        """Where the grid lies (``navkit.raster.GridFrame``: the one cell <-> metre conversion)."""
+        return GridFrame(self.origin, self.resolution)
+
     def cell_of(self, xy: ArrayLike) -> NDArray[np.int64]:
         """World points (N, 2) -> cells (N, 2) as ``[row, col]`` (no bounds check)."""
-        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        col = np.floor((p[:, 0] - self.origin[0]) / self.resolution).astype(np.int64)
-        row = np.floor((p[:, 1] - self.origin[1]) / self.resolution).astype(np.int64)
-        return np.stack([row, col], axis=-1)
+        return self.frame.to_cell(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
 
     def centres(self, mask: NDArray[np.bool_]) -> NDArray[np.float64]:
         """World centres (N, 2) of the cells where ``mask`` is set."""
-        return cell_centres(mask, self.origin, self.resolution)
+        return self.frame.centres(mask)
 
     def save(self, yaml_path: str | Path, image_format: str = "png") -> Path:
-        """Write ``<name>.png`` (or ``.pgm``) and ``<name>.yaml`` (map_server, trinary); returns the
-        YAML path. PNG by default: map_server reads it, and it is the lossless compression NavTopo's
-        location grids are stored with, so both systems' maps on disk compare like for like."""
-        yaml_path = Path(yaml_path)
-        yaml_path.parent.mkdir(parents=True, exist_ok=True)
-        if image_format not in ("png", "pgm"):
-            raise ValueError(f"image_format must be png or pgm, not {image_format!r}")
-        image_path = yaml_path.with_suffix(f".{image_format}")
-        image = np.full(self.cells.shape, PGM_UNKNOWN, np.uint8)
-        image[self.cells == FREE] = PGM_FREE
-        image[self.cells == OCCUPIED] = PGM_OCCUPIED
-        rows_down = np.ascontiguousarray(np.flipud(image))
-        if image_format == "png":
-            ok, data = cv2.imencode(".png", rows_down)
-            if not ok:
-                raise ValueError("could not encode the map as PNG")
-            atomic_write(image_path, data.tobytes())
-        else:
-            height, width = image.shape
-            header = f"P5\n# navtopo-bench metric_grid, {self.resolution} m/cell\n{width} {height}\n255\n"
-            atomic_write(image_path, header.encode("ascii") + rows_down.tobytes())
-        meta = {
-            "image": image_path.name,
-            "mode": "trinary",
-            "resolution": float(self.resolution),
-            "origin": [float(self.origin[0]), float(self.origin[1]), 0.0],
-            "negate": 0,
-            "occupied_thresh": 0.65,
-            "free_thresh": 0.196,
-        }
-        atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode())
-        return yaml_path
+        """Write ``<name>.png`` (or ``.pgm``) and ``<name>.yaml`` (map_server, trinary, through
+        ``navkit.raster.write_map_server``); returns the YAML path. PNG by default: map_server reads
+        it, and it is the lossless compression NavTopo's location grids are stored with, so both
+        systems' maps on disk compare like for like."""
+        comment = f"navtopo-bench metric_grid, {self.resolution} m/cell"
+        return write_map_server(yaml_path, trinary_image(self.cells), self.frame, image_format=image_format, comment=comment)
 
     @classmethod
     def load(cls, yaml_path: str | Path) -> GridMap:
-        """Read a map_server map (any mode is classified by its thresholds into three values)."""
-        yaml_path = Path(yaml_path)
-        meta = yaml.safe_load(yaml_path.read_text())
-        for key in ("image", "resolution", "origin"):
-            if key not in meta:
-                raise ValueError(f"{yaml_path}: missing key '{key}'")
-        if len(meta["origin"]) >= 3 and abs(float(meta["origin"][2])) > 1e-9:
-            raise ValueError(f"{yaml_path}: a rotated origin (yaw != 0) is not supported")
-        image = read_image(yaml_path.parent / meta["image"])
-        occupancy = image.astype(np.float64) / 255.0
-        if not int(meta.get("negate", 0)):
-            occupancy = 1.0 - occupancy
-        cells = np.full(image.shape, UNKNOWN, np.uint8)
-        cells[occupancy > float(meta.get("occupied_thresh", 0.65))] = OCCUPIED
-        cells[occupancy < float(meta.get("free_thresh", 0.196))] = FREE
-        origin = np.array(meta["origin"][:2], dtype=np.float64)
-        return cls(np.ascontiguousarray(np.flipud(cells)), origin, float(meta["resolution"]))
-
-
-def read_image(path: Path) -> NDArray[np.uint8]:
-    """A greyscale map image: binary or ASCII PGM read here, anything else through OpenCV."""
-    data = path.read_bytes()
-    if data[:2] in (b"P5", b"P2"):
-        tokens: list[bytes] = []
-        pos = 2
-        while len(tokens) < 3:  # width, height, maxval; skipping comments
-            while data[pos : pos + 1].isspace():
-                pos += 1
-            if data[pos : pos + 1] == b"#":
-                pos = data.index(b"\n", pos) + 1
-                continue
-            end = pos
-            while not data[end : end + 1].isspace():
-                end += 1
-            tokens.append(data[pos:end])
-            pos = end
-        width, height, maxval = (int(t) for t in tokens)
-        pos += 1  # the single whitespace after maxval
-        if data[:2] == b"P5":
-            dtype = np.uint8 if maxval < 256 else np.dtype(">u2")
-            pixels = np.frombuffer(data, dtype=dtype, count=width * height, offset=pos)
-        else:
-            pixels = np.array(data[pos:].split()[: width * height], dtype=np.int64)
-        image = pixels.reshape(height, width).astype(np.float64) * (255.0 / maxval)
-        return np.round(image).astype(np.uint8)
-    # decoded from the bytes read above: OpenCV given a path that is not UTF-8 crashes the process
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE) if data else None
-    if image is None:
-        raise ValueError(f"{path}: not an image")
-    return image
-
-
-def cell_centres(mask: NDArray[np.bool_], origin: ArrayLike, resolution: float) -> NDArray:
-    """World centres (N, 2) of the set cells of a ``[row, col]`` mask (row 0 the lowest y)."""
-    rows, cols = np.nonzero(mask)
-    origin = np.asarray(origin, dtype=np.float64)
-    return np.stack([origin[0] + (cols + 0.5) * resolution, origin[1] + (rows + 0.5) * resolution], axis=-1)
+        """Read a map_server map (``navkit.raster.read_map_server``: its pixels classified by the
+        YAML's thresholds into the three values); ``MapFileError`` names the file, key and reason."""
+        read = read_map_server(yaml_path)
+        return cls(read.cells, read.frame.origin, read.frame.resolution)
 
 
 class OccupancyGrid:
@@ -189,7 +109,7 @@ class OccupancyGrid:
         self.config = config or OccupancyConfig()
         self.resolution = self.config.resolution
         self.logodds = np.zeros((0, 0), np.float32)
-        self.origin = np.zeros(2)
+        self.origin: NDArray[np.float64] = np.zeros(2)
         self._cell0 = np.zeros(2, np.int64)  # world cell index of logodds[0, 0]: [row, col]
         self.keyframes = 0
 
@@ -218,6 +138,10 @@ class OccupancyGrid:
         corner_row = int(np.round(pose[1] / res))
         return corner_row - half, corner_col - half, half
 
+    def _corner(self, cell: NDArray[np.int64]) -> NDArray[np.float64]:
+        """World x, y (2,) of the lower-left corner of the global cell ``[row, col]``."""
+        return cast("NDArray[np.float64]", cell[::-1] * self.resolution)
+
     def _ensure(self, row0: int, col0: int, rows: int, cols: int) -> None:
         """Grow the grid so that world cells [row0, row0+rows) x [col0, col0+cols) exist.
 
@@ -230,9 +154,9 @@ class OccupancyGrid:
             top, left = row0 - step, col0 - step
             self.logodds = np.zeros((rows + 2 * step, cols + 2 * step), np.float32)
             self._cell0 = np.array([top, left])
-            self.origin = self._cell0[::-1] * self.resolution
+            self.origin = self._corner(self._cell0)
             return
-        top, left = self._cell0
+        top, left = int(self._cell0[0]), int(self._cell0[1])
         grow_down = max(0, top - row0)
         grow_left = max(0, left - col0)
         grow_up = max(0, (row0 + rows) - (top + height))
@@ -244,7 +168,7 @@ class OccupancyGrid:
             grow_right += step if grow_right else 0
             self.logodds = np.pad(self.logodds, ((grow_down, grow_up), (grow_left, grow_right)))
             self._cell0 = np.array([top - grow_down, left - grow_left])
-            self.origin = self._cell0[::-1] * self.resolution
+            self.origin = self._corner(self._cell0)
 
     def integrate(self, pose: ArrayLike, points: ArrayLike, ranges: ArrayLike) -> None:
         """Add one keyframe. pose: (3,) map frame; points: (M, 2) obstacle points and ranges:
@@ -256,9 +180,11 @@ class OccupancyGrid:
         window = np.zeros((size, size), np.uint8)
         # obstacle cells
         obstacles = se2.transform_points(pose, np.asarray(points, dtype=np.float64).reshape(-1, 2))
-        cells = np.floor(obstacles / res).astype(np.int64) - [col0, row0]
-        inside = ((cells >= 0) & (cells < size)).all(axis=1)
-        window[cells[inside, 1], cells[inside, 0]] = OCCUPIED
+        # the window's frame: global cell (row0, col0) is its cell (0, 0); the map frame's origin is
+        # the corner of global cell (0, 0)
+        cells = GridFrame(np.zeros(2), res).shifted(row0, col0).to_cell(obstacles)
+        in_window = inside(cells, window.shape)
+        window[cells[in_window, 0], cells[in_window, 1]] = OCCUPIED
         # free rays, in continuous window-cell coordinates
         ends = se2.transform_points(pose, free_endpoints(ranges)) / res - [col0, row0]
         if len(ends):
@@ -302,7 +228,7 @@ class OccupancyGrid:
                 r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, cells.shape[0])
                 c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, cells.shape[1])
                 cells = np.ascontiguousarray(cells[r0:r1, c0:c1])
-                origin = (self._cell0[::-1] + [c0, r0]) * self.resolution
+                origin = self._corner(self._cell0 + [r0, c0])
         return GridMap(cells, origin, self.resolution)
 
     @property
@@ -335,8 +261,8 @@ def map_quality(
     Distances are between cell centres; both masks are ``[row, col]`` with row 0 the lowest y.
     A figure with nothing to count is NaN.
     """
-    mapped = cell_centres(occupied_mask, origin, res)
-    walls = cell_centres(gt_wall_mask, gt_origin, gt_res)
+    mapped = GridFrame(np.asarray(origin, dtype=np.float64), res).centres(occupied_mask)
+    walls = GridFrame(np.asarray(gt_origin, dtype=np.float64), gt_res).centres(gt_wall_mask)
     if len(walls) == 0 or len(mapped) == 0:
         recall = float("nan") if len(walls) == 0 else 0.0
         precision = float("nan") if len(mapped) == 0 else 0.0

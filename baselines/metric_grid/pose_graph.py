@@ -21,10 +21,11 @@ Poses are ``[x, y, yaw]`` in the map frame, which is the odometry frame of the f
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import gtsam
 import numpy as np
@@ -35,6 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from navkit import geometry as se2
+from navkit.files import atomic_write
 from navkit.odometry import se2_to_se3, se3_to_se2
 
 from .scan2d import voxel_filter_2d
@@ -225,7 +227,7 @@ class PoseGraph:
         """
         odom_pose = np.asarray(odom_pose, dtype=np.float64)
         if self._last_odom is not None:
-            self._travel += se2.distance(self._last_odom, odom_pose)
+            self._travel += float(se2.distance(self._last_odom, odom_pose))
         self._last_odom = odom_pose.copy()
         if not self.needs_keyframe(odom_pose):
             return False
@@ -258,17 +260,26 @@ class PoseGraph:
         yaw = np.deg2rad(c.odometry_sigma_yaw_deg + c.odometry_sigma_yaw_deg_per_m * dist)
         return gtsam.noiseModel.Diagonal.Sigmas(np.array([xy, xy, yaw]))
 
+    def _keyframe_factor(self, k: int) -> gtsam.NonlinearFactor:
+        """Keyframe ``k``'s factor: keyframe 0 anchors the map frame at its odometry pose; each later
+        one is tied to the one before by the odometry between them."""
+        if k == 0:
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
+            return gtsam.PriorFactorPose2(0, _to_pose2(self.keyframes[0].odom_pose), prior)
+        delta = se2.between(self.keyframes[k - 1].odom_pose, self.keyframes[k].odom_pose)
+        return gtsam.BetweenFactorPose2(k - 1, k, _to_pose2(delta), self._odometry_noise(delta))
+
+    def _loop_factor(self, closure: LoopClosure) -> gtsam.NonlinearFactor:
+        return gtsam.BetweenFactorPose2(closure.old, closure.new, _to_pose2(closure.pose), self._loop_noise())
+
     def _add_odometry_factor(self, k: int) -> None:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
+        graph.add(self._keyframe_factor(k))
         if k == 0:
             initial = self.keyframes[0].odom_pose
-            prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
-            graph.add(gtsam.PriorFactorPose2(0, _to_pose2(initial), prior))
-        else:
+        else:  # initial values composed from the current estimate, not from raw odometry
             delta = se2.between(self.keyframes[k - 1].odom_pose, self.keyframes[k].odom_pose)
-            graph.add(gtsam.BetweenFactorPose2(k - 1, k, _to_pose2(delta), self._odometry_noise(delta)))
-            # initial values composed from the current estimate, not from raw odometry
             initial = se2.compose(self._estimate[k - 1], delta)
         values.insert(k, _to_pose2(initial))
         self._estimate = np.vstack([self._estimate, initial[None, :]])
@@ -289,7 +300,7 @@ class PoseGraph:
         far_along = travel <= self.keyframes[k].travel - c.min_travel
         if not far_along.any():
             return []
-        dist = se2.distance(self._estimate[:k], self._estimate[k])
+        dist = np.asarray(se2.distance(self._estimate[:k], self._estimate[k]))
         eligible = np.flatnonzero(far_along & (dist <= c.search_radius))
         ordered = eligible[np.argsort(dist[eligible])]
         chosen: list[int] = []
@@ -350,7 +361,7 @@ class PoseGraph:
         """Add a loop factor (robust) and, with iSAM2, update the estimate."""
         self.loops.append(closure)
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.BetweenFactorPose2(closure.old, closure.new, _to_pose2(closure.pose), self._loop_noise()))
+        graph.add(self._loop_factor(closure))
         self._graph.push_back(graph)
         if self.config.optimizer == "isam2":
             self._isam.update(graph, gtsam.Values())
@@ -408,7 +419,7 @@ class PoseGraph:
         free = np.zeros((len(self.keyframes), bins), np.float16)
         for k, kf in enumerate(self.keyframes):
             free[k, : len(kf.free_ranges)] = kf.free_ranges
-        arrays = {
+        arrays: dict[str, Any] = {
             "odom_poses": np.array([kf.odom_pose for kf in self.keyframes]).reshape(-1, 3),
             "travel": np.array([kf.travel for kf in self.keyframes], dtype=np.float64),
             "point_offsets": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
@@ -419,7 +430,9 @@ class PoseGraph:
             "loop_poses": np.array([lc.pose for lc in self.loops]).reshape(-1, 3),
             "loop_scores": np.array([[lc.fitness, lc.rmse, lc.constraint] for lc in self.loops]).reshape(-1, 3),
         }
-        np.savez(directory / "pose_graph.npz", **arrays)
+        npz = io.BytesIO()  # the bytes np.savez writes to a file, written whole or not at all
+        np.savez(npz, **arrays)
+        atomic_write(directory / "pose_graph.npz", npz.getvalue())
         meta = {
             "format": FORMAT,
             "keyframes": len(self.keyframes),
@@ -427,7 +440,7 @@ class PoseGraph:
             "travel_m": self._travel,
             "config": self.config.model_dump(mode="json"),
         }
-        (directory / "pose_graph.json").write_text(json.dumps(meta, indent=2))
+        atomic_write(directory / "pose_graph.json", json.dumps(meta, indent=2))
 
     @classmethod
     def load(cls, directory: str | Path) -> PoseGraph:
@@ -459,18 +472,13 @@ class PoseGraph:
         estimate = arrays["estimate"]
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        for k, kf in enumerate(self.keyframes):
-            if k == 0:
-                prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-4, 1e-4, 1e-5]))
-                graph.add(gtsam.PriorFactorPose2(0, _to_pose2(kf.odom_pose), prior))
-            else:
-                delta = se2.between(self.keyframes[k - 1].odom_pose, kf.odom_pose)
-                graph.add(gtsam.BetweenFactorPose2(k - 1, k, _to_pose2(delta), self._odometry_noise(delta)))
+        for k in range(len(self.keyframes)):
+            graph.add(self._keyframe_factor(k))
             values.insert(k, _to_pose2(estimate[k]))
         for (old, new), pose, scores in zip(arrays["loop_pairs"], arrays["loop_poses"], arrays["loop_scores"], strict=True):
             closure = LoopClosure(int(old), int(new), pose.copy(), *(float(v) for v in scores))
             self.loops.append(closure)
-            graph.add(gtsam.BetweenFactorPose2(closure.old, closure.new, _to_pose2(pose), self._loop_noise()))
+            graph.add(self._loop_factor(closure))
         self._graph = graph
         self._estimate = np.asarray(estimate, dtype=np.float64).reshape(-1, 3).copy()
         if self.config.optimizer == "isam2" and self.keyframes:

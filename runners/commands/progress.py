@@ -21,6 +21,7 @@ from runners.commands.errors import Interrupted, RunsFailed
 if TYPE_CHECKING:
     from rich.progress import Progress, TaskID
 
+    from reports.records import TrialRecord
     from runners.driver import Outcome
     from runners.executors import Executor
     from runners.results import RunDir
@@ -72,16 +73,16 @@ class RunProgress:
             self.logged_tenths = tenth
             self.progress.console.print(f"  mapping {self.label}: {travelled:.0f} / {total:.0f} m", highlight=False)
 
-    def on_trial(self, record: dict[str, Any]) -> None:
+    def on_trial(self, record: TrialRecord) -> None:
         if self.trial_task is not None:
             self.progress.advance(self.trial_task)
-        mark = "[green]ok[/]" if record["success"] else f"[red]{record['reason']}[/]"
-        if record.get("detail"):
-            mark += f" ({escape(record['detail'])})"
-        eff = record["efficiency"]
+        mark = "[green]ok[/]" if record.success else f"[red]{record.reason}[/]"
+        if record.detail:
+            mark += f" ({escape(record.detail)})"
+        eff = record.efficiency
         where = f"{escape(self.label)}: " if self.many else ""
         self.progress.console.print(
-            f"  {where}{record['system']:>12} trial {record['trial']:>3}: {mark}"
+            f"  {where}{record.system:>12} trial {record.trial:>3}: {mark}"
             + (f" efficiency {eff:.3f}" if eff is not None else ""),
             highlight=False,
         )

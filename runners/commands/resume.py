@@ -16,7 +16,7 @@ from typing import Any
 
 from pydantic import Field, ValidationError, ValidationInfo, field_validator, model_validator
 
-from reports.results import Manifest, ScenarioInfo
+from reports.records import Manifest, ScenarioInfo
 from runners.commands.errors import Refused
 
 # the keys a resume reads, in the order it checks them, and the reason given when one is wrong

@@ -1,0 +1,77 @@
+"""The metric baseline's global planner: Lazy Theta* on the map's free cells (DESIGN.md).
+
+As a Nav2 user's global planner on a static map: the map's known free cells eroded by the robot
+radius plus a margin (and half a cell, so the clearance holds to the cell boundary), then by the
+radius alone; then, if allowed, with unknown cells counted as free. The four masks are eroded once,
+when the map is loaded; a start or goal inside the eroded zone snaps to the nearest passable cell
+within ``snap_radius``. Obstacles the map lacks (``obstacles.UnmappedObstacles``) are blocked in
+every mask: with any of them remembered the masks are eroded again at each plan, only as far as the
+fallbacks need (``navkit.grid_planning.plan_path`` asks for them one by one).
+
+Raster convention (``occupancy.GridMap``): ``cells[row, col]``, row ↔ y, col ↔ x; points and paths
+are (N, 2) metric in the map frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from navkit import grid_search
+from navkit.grid_planning import PlannedPath, plan_path
+from navkit.raster import FREE, OCCUPIED, GridFrame, inside
+
+from .config import PlanningConfig
+from .occupancy import GridMap
+
+
+class GridPlanner:
+    """Theta* on a loaded map, with the eroded masks of its fallback levels prepared once."""
+
+    def __init__(self, grid_map: GridMap, robot_radius: float, config: PlanningConfig) -> None:
+        self.grid_map = grid_map
+        self.config = config
+        res = grid_map.resolution
+        self._known_free = grid_map.cells == FREE
+        self._not_occupied = grid_map.cells != OCCUPIED
+        wide = robot_radius + res / 2 + config.inflation_margin
+        tight = robot_radius + res / 2
+        # (base free mask, radius) in the order they are tried; eroded masks cached per pair
+        self.attempts: list[tuple[str, float]] = [("known", wide), ("known", tight)]
+        if config.unknown_fallback:
+            self.attempts += [("unknown", wide), ("unknown", tight)]
+        self.eroded: dict[tuple[str, float], NDArray[np.bool_]] = {
+            key: grid_search.inflate_free(self._base(key[0]), key[1], res) for key in self.attempts
+        }
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the eroded masks (the planner's derived state)."""
+        return sum(int(mask.nbytes) for mask in self.eroded.values())
+
+    def _base(self, kind: str) -> NDArray[np.bool_]:
+        return self._known_free if kind == "known" else self._not_occupied
+
+    def plan(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> PlannedPath | None:
+        """The path from start to goal (both (2,), map frame) on the first level that has one, or
+        None; ``obstacles`` (N, 2) map-frame points whose cells are blocked in every mask."""
+        grid = self.grid_map
+        snap = int(np.ceil(self.config.snap_radius / grid.resolution))
+        frame = grid.frame
+        blocked = self._blocked_cells(frame, obstacles) if len(obstacles) else None
+
+        def mask(level: int) -> NDArray[np.bool_]:
+            kind, radius = self.attempts[level]
+            if blocked is None:
+                return self.eroded[(kind, radius)]
+            return grid_search.inflate_free(self._base(kind) & ~blocked, radius, grid.resolution)
+
+        return plan_path(mask, frame, start_xy, goal_xy, snap, levels=len(self.attempts))
+
+    def _blocked_cells(self, frame: GridFrame, obstacles: NDArray) -> NDArray[np.bool_]:
+        """(H, W) the map's cells that hold one of the points (N, 2); points off the map are dropped."""
+        cells = frame.to_cell(obstacles)
+        on_map = inside(cells, self.grid_map.cells.shape)
+        blocked = np.zeros(self.grid_map.cells.shape, bool)
+        blocked[cells[on_map, 0], cells[on_map, 1]] = True
+        return blocked

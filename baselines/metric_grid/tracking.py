@@ -1,0 +1,151 @@
+"""The metric baseline's pose on its map while it navigates (DESIGN.md): the ``map -> odom`` chain.
+
+As a Nav2 user runs a robot: the initial pose is given in the map frame by hand (off by up to the
+protocol's ±0.5 m, ±10°). Odometry (``navkit.odometry.LidarOdometry``, restarted at every initial
+pose) is composed onto it through ``map_from_odom``. Until the pose has been found on the map, each
+scan is searched for around the estimate, then over the whole map (``localization.Relocalizer``);
+while none is found the caller turns in place, and gives up after the relocalization timeout. Once
+found, every ``every_scans``-th scan is registered to the map (``localization.ScanToMap``) and an
+accepted fit moves ``map_from_odom``; after ``lost_after`` rejected fits in a row, the window around
+the estimate is searched again.
+
+Poses are map-frame ``[x, y, yaw]`` float64; scans are (N, 2) obstacle points in the robot frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from navkit import geometry as se2
+from navkit.odometry import LidarOdometry, OdometryConfig
+from navkit.types import Observation
+
+from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMapConfig
+from .occupancy import GridMap
+
+#: the tracker's counters, in the order the system reports them
+COUNTERS = ("fits", "fits_rejected", "relocalizations", "global_searches", "relocalizations_failed")
+
+
+class PoseTracker:
+    """Map-frame pose from odometry, corrected by the map fit; relocalization while not found."""
+
+    def __init__(
+        self,
+        odometry: OdometryConfig,
+        localization: ScanToMapConfig,
+        relocalization: RelocalizationConfig,
+        robot_radius: float,
+    ) -> None:
+        self.odometry_config = odometry
+        self.localization = localization
+        self.relocalization = relocalization
+        self.robot_radius = robot_radius
+        self.localizer: ScanToMap | None = None
+        self.relocalizer: Relocalizer | None = None
+        self.counters = dict.fromkeys(COUNTERS, 0)
+        self.reset()
+
+    def use_map(self, grid_map: GridMap) -> None:
+        """The map to track on: its distance field (also the new-obstacle test's) and score field."""
+        self.localizer = ScanToMap(grid_map, self.localization)
+        self.relocalizer = Relocalizer(grid_map, self.localizer, self.robot_radius, self.relocalization)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the distance field and the relocalizer's score field."""
+        return (self.localizer.nbytes if self.localizer is not None else 0) + (
+            self.relocalizer.nbytes if self.relocalizer is not None else 0
+        )
+
+    def reset(self) -> None:
+        """Forget the pose, the odometry and the counters (a new trial)."""
+        self._initial_pose: NDArray[np.float64] | None = None
+        self.pose: NDArray[np.float64] | None = None
+        self._map_from_odom: NDArray[np.float64] | None = None
+        self._odometry: LidarOdometry | None = None
+        self._localized = False
+        self.localize_started: float | None = None
+        self._rejections = 0
+        self.counters = dict.fromkeys(self.counters, 0)
+
+    def set_initial_pose(self, pose: ArrayLike) -> None:
+        """The robot's pose (3,) in the map frame as given; odometry restarts here and the pose is
+        searched for around it."""
+        self._initial_pose = np.asarray(pose, dtype=np.float64).copy()
+        self.pose = self._initial_pose.copy()
+        self._map_from_odom = None
+        self._odometry = None
+        self._localized = False
+        self.localize_started = None
+
+    def search_timed_out(self, stamp: float) -> bool:
+        """Whether the pose has been searched for longer than the relocalization timeout at ``stamp``."""
+        return stamp - (self.localize_started or 0.0) > self.relocalization.timeout
+
+    def track(self, obs: Observation, points: NDArray) -> NDArray[np.float64] | None:
+        """Map-frame pose at this scan (``points``: its filtered obstacle points, robot frame): odometry
+        composed onto the initial pose, corrected by the map fit; None while the pose has not been
+        found on the map."""
+        if self._initial_pose is None:
+            if self.pose is None:
+                raise RuntimeError("the metric baseline needs set_initial_pose() before the first step")
+            self.set_initial_pose(self.pose)  # carry on from the last tracked pose
+            self._localized = True
+        if self._odometry is None:
+            self._odometry = LidarOdometry(self.odometry_config)
+        odom_pose = self._odometry.update(obs.points, obs.odom)
+        if self._map_from_odom is None:
+            assert self._initial_pose is not None
+            self._map_from_odom = se2.compose(self._initial_pose, se2.inverse(odom_pose))
+        pose = se2.compose(self._map_from_odom, odom_pose)
+        loc = self.localization
+        near = points[np.hypot(points[:, 0], points[:, 1]) <= loc.max_range]
+        if not self._localized:
+            if self.localize_started is None:
+                self.localize_started = obs.stamp
+            found = self._relocalize(near, pose, everywhere=True)
+            self.pose = pose
+            if found is None:
+                return None
+            pose, self._localized = found, True
+            self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
+        elif loc.enabled and self.localizer is not None and self._odometry.scans % loc.every_scans == 0:
+            pose = self._fit(near, pose, odom_pose)
+        self.pose = pose
+        return pose
+
+    def _fit(self, near: NDArray, pose: NDArray[np.float64], odom_pose: NDArray) -> NDArray[np.float64]:
+        """The pose corrected by the map fit (or by the window search once lost); else ``pose``."""
+        assert self.localizer is not None
+        fit = self.localizer.fit(near, pose)
+        if fit is None:
+            self.counters["fits_rejected"] += 1
+            self._rejections += 1
+            if self._rejections >= self.relocalization.lost_after:  # lost: search the window again
+                found = self._relocalize(near, pose, everywhere=False)
+                self._rejections = 0
+                if found is not None:
+                    fit = (found, 1.0)
+        if fit is not None:
+            self.counters["fits"] += 1
+            self._rejections = 0
+            pose = fit[0]
+            self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
+        return pose
+
+    def _relocalize(self, points: NDArray, guess: NDArray, everywhere: bool) -> NDArray[np.float64] | None:
+        """The pose of the scan on the map: the window around ``guess``, then (if allowed) all of it."""
+        config = self.relocalization
+        if not config.enabled or self.relocalizer is None:
+            return guess
+        self.counters["relocalizations"] += 1
+        found = self.relocalizer.around(points, guess)
+        if found is None and everywhere and config.global_search:
+            self.counters["global_searches"] += 1
+            found = self.relocalizer.everywhere(points)
+        if found is None:
+            self.counters["relocalizations_failed"] += 1
+            return None
+        return found[0]
