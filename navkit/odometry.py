@@ -290,6 +290,7 @@ class LidarOdometry:
         if self._anchor is None:
             self._anchor = wheel_odom.copy()
             self._last_wheel = wheel_odom.copy()
+        assert self._last_wheel is not None  # set with the anchor
         wheel_delta = se2.between(self._last_wheel, wheel_odom)
         self._last_wheel = wheel_odom.copy()
         if self._kiss is None:

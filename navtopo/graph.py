@@ -16,6 +16,7 @@ from __future__ import annotations
 import heapq
 import io
 import json
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from navkit.errors import BenchError
 from navkit.files import atomic_write
 from navkit.geometry import compose, inverse
 from navtopo.local_grid import CroppedGrid, decode_png, encode_png
@@ -31,8 +33,9 @@ FORMAT = "navtopo-graph/1"
 EDGE_BYTES = 2 * 8 + 3 * 8  # neighbour id + owner id (int64) and the relative pose (3 float64)
 
 
-class GraphFormatError(ValueError):
-    """A saved graph that cannot be loaded; ``str(error)`` is the one line for a user."""
+class GraphFormatError(BenchError, ValueError):
+    """A saved graph that cannot be loaded; ``str(error)`` is the one line for a user. An input
+    refused (``BenchError``, exit code 2), and a ``ValueError`` for callers that catch those."""
 
 
 @dataclass
@@ -115,8 +118,10 @@ class TopologicalGraph:
 
     # -- search ----------------------------------------------------------------------------------
 
-    def dijkstra(self, source: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """Distances (translation lengths) from ``source`` to every vertex and the predecessors."""
+    def dijkstra(self, source: int, removed: Collection[frozenset[int]] = ()) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Distances (translation lengths) from ``source`` to every vertex and the predecessors (each
+        vertex's next one on the way back to ``source``), over the edges but those in ``removed``
+        (``frozenset((u, v))``: edges found impassable during a trial)."""
         n = len(self.vertices)
         dist = np.full(n, np.inf)
         prev = np.full(n, -1, dtype=np.int64)
@@ -127,6 +132,8 @@ class TopologicalGraph:
             if d > dist[u]:
                 continue
             for v, pose in self._adjacency[u].items():
+                if removed and frozenset((u, v)) in removed:
+                    continue
                 nd = d + float(np.hypot(pose[0], pose[1]))
                 if nd < dist[v]:
                     dist[v] = nd
@@ -217,69 +224,16 @@ class TopologicalGraph:
         """The graph and the extra keys saved with it; ``GraphFormatError`` on a bad folder."""
         directory = Path(directory)
         index = directory / "graph.json"
-        if not index.is_file():
-            raise GraphFormatError(f"{index}: missing (not a NavTopo graph folder, or a partial save)")
-        try:
-            data = json.loads(index.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise GraphFormatError(f"{index}: not valid JSON ({exc})") from None
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise GraphFormatError(
-                f"{index}: format: expected {FORMAT!r}, got {data.get('format') if isinstance(data, dict) else None!r}"
-            )
-        try:
-            dim = int(data["descriptor_dim"])
-            vertices, edges = list(data["vertices"]), list(data["edges"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise GraphFormatError(f"{index}: {exc}: required key missing or of the wrong type") from None
-        descriptors_path = directory / "descriptors.npy"
-        try:
-            descriptors = np.load(descriptors_path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise GraphFormatError(f"{descriptors_path}: cannot read ({exc})") from None
-        if descriptors.shape != (len(vertices), dim):
-            raise GraphFormatError(
-                f"{descriptors_path}: shape {descriptors.shape}, expected ({len(vertices)}, {dim}) from graph.json"
-            )
+        data, dim, vertices, edges = _read_index(index)
+        descriptors = _read_descriptors(directory / "descriptors.npy", len(vertices), dim)
         graph = cls(dim)
         for i, entry in enumerate(vertices):
-            key = f"vertices.{i}"
             try:
-                grid_entry = entry["grid"]
-                png = directory / grid_entry["file"]
-                shape = tuple(grid_entry["shape"])
-                if shape == (0, 0):
-                    cells = np.zeros((0, 0), np.uint8)
-                else:
-                    try:
-                        cells = decode_png(png.read_bytes())
-                    except FileNotFoundError:
-                        raise GraphFormatError(f"{png}: missing ({key} of {index})") from None
-                    except ValueError as exc:
-                        raise GraphFormatError(f"{png}: corrupt grid image ({exc})") from None
-                    if cells.shape != shape:
-                        raise GraphFormatError(f"{png}: grid of shape {cells.shape}, expected {shape} from {index}")
-                grid = CroppedGrid(cells, int(grid_entry["row0"]), int(grid_entry["col0"]), int(grid_entry["size"]))
-                odometer = entry.get("odometer")
-                graph.add_vertex(
-                    grid,
-                    descriptors[i],
-                    np.asarray(entry["pose_hint"], float),
-                    float(entry["stamp"]),
-                    None if odometer is None else float(odometer),
-                )
-                if entry.get("lidar_hint") is not None:
-                    try:
-                        lidar_hint = np.asarray(entry["lidar_hint"], float)
-                    except (TypeError, ValueError):
-                        lidar_hint = np.zeros(0)
-                    if lidar_hint.shape != (3,) or not np.isfinite(lidar_hint).all():
-                        raise ValueError(f"lidar_hint: expected 3 finite numbers, got {entry['lidar_hint']!r}")
-                    graph.vertices[-1].lidar_hint = lidar_hint
+                _add_vertex(graph, directory, index, i, entry, descriptors[i])
             except GraphFormatError:
                 raise
             except (KeyError, TypeError, ValueError) as exc:
-                raise GraphFormatError(f"{index}: {key}: bad entry ({exc})") from None
+                raise GraphFormatError(f"{index}: vertices.{i}: bad entry ({exc})") from None
         for j, edge in enumerate(edges):
             try:
                 u, v = int(edge[0]), int(edge[1])
@@ -290,3 +244,79 @@ class TopologicalGraph:
                 raise GraphFormatError(f"{index}: edges.{j}: bad edge ({exc})") from None
         extra = {k: v for k, v in data.items() if k not in ("format", "descriptor_dim", "vertices", "edges")}
         return graph, extra
+
+
+# -- loading, one part of the folder at a time ------------------------------------------------------
+
+
+def _read_index(index: Path) -> tuple[dict[str, Any], int, list, list]:
+    """``graph.json``: (its data, the descriptor dimension, the vertex entries, the edge entries)."""
+    if not index.is_file():
+        raise GraphFormatError(f"{index}: missing (not a NavTopo graph folder, or a partial save)")
+    try:
+        data = json.loads(index.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise GraphFormatError(f"{index}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise GraphFormatError(
+            f"{index}: format: expected {FORMAT!r}, got {data.get('format') if isinstance(data, dict) else None!r}"
+        )
+    try:
+        dim = int(data["descriptor_dim"])
+        vertices, edges = list(data["vertices"]), list(data["edges"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise GraphFormatError(f"{index}: {exc}: required key missing or of the wrong type") from None
+    return data, dim, vertices, edges
+
+
+def _read_descriptors(path: Path, count: int, dim: int) -> NDArray:
+    """``descriptors.npy``: (count, dim) as ``graph.json`` says."""
+    try:
+        descriptors = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise GraphFormatError(f"{path}: cannot read ({exc})") from None
+    if descriptors.shape != (count, dim):
+        raise GraphFormatError(f"{path}: shape {descriptors.shape}, expected ({count}, {dim}) from graph.json")
+    return descriptors
+
+
+def _read_grid(directory: Path, index: Path, key: str, grid_entry: dict[str, Any]) -> CroppedGrid:
+    """A vertex's grid from its PNG (none is written for a grid with no known cell)."""
+    png = directory / grid_entry["file"]
+    shape = tuple(grid_entry["shape"])
+    if shape == (0, 0):
+        cells = np.zeros((0, 0), np.uint8)
+    else:
+        try:
+            cells = decode_png(png.read_bytes())
+        except FileNotFoundError:
+            raise GraphFormatError(f"{png}: missing ({key} of {index})") from None
+        except ValueError as exc:
+            raise GraphFormatError(f"{png}: corrupt grid image ({exc})") from None
+        if cells.shape != shape:
+            raise GraphFormatError(f"{png}: grid of shape {cells.shape}, expected {shape} from {index}")
+    return CroppedGrid(cells, int(grid_entry["row0"]), int(grid_entry["col0"]), int(grid_entry["size"]))
+
+
+def _add_vertex(
+    graph: TopologicalGraph, directory: Path, index: Path, i: int, entry: dict[str, Any], descriptor: NDArray
+) -> None:
+    """Vertex ``i`` of ``graph.json`` into ``graph``; a bad entry raises KeyError, TypeError or ValueError
+    (the caller names it), a bad grid file ``GraphFormatError``."""
+    grid = _read_grid(directory, index, f"vertices.{i}", entry["grid"])
+    odometer = entry.get("odometer")
+    graph.add_vertex(
+        grid,
+        descriptor,
+        np.asarray(entry["pose_hint"], float),
+        float(entry["stamp"]),
+        None if odometer is None else float(odometer),
+    )
+    if entry.get("lidar_hint") is not None:
+        try:
+            lidar_hint = np.asarray(entry["lidar_hint"], float)
+        except (TypeError, ValueError):
+            lidar_hint = np.zeros(0)
+        if lidar_hint.shape != (3,) or not np.isfinite(lidar_hint).all():
+            raise ValueError(f"lidar_hint: expected 3 finite numbers, got {entry['lidar_hint']!r}")
+        graph.vertices[-1].lidar_hint = lidar_hint

@@ -11,7 +11,9 @@ Grid layout (one convention, used by every function here and by ``scan_matching`
 * ``grid[row, col]``: ``col`` grows with +x, ``row`` grows with +y. Cell ``(row, col)`` covers
   ``x in [(col - size/2) * res, (col - size/2 + 1) * res)``, likewise ``y`` with ``row``; the
   observation point ``(0, 0)`` is the corner shared by the four central cells. (Shown as an
-  image, +y points down: use ``origin="lower"`` to see the map the usual way up.)
+  image, +y points down: use ``origin="lower"`` to see the map the usual way up.) Cell <-> metre
+  conversions go through ``grid_frame(config)``, the shared ``navkit.raster.GridFrame`` centred on
+  the observation point.
 * Cells are ``UNKNOWN`` (0), ``FREE`` (1) or ``OCCUPIED`` (2).
 
 Building a grid (``grid_from_points``): points between ``floor_height`` and ``ceiling_height``
@@ -43,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from navkit.geometry import inverse
-from navkit.raster import OCCUPIED, UNKNOWN
+from navkit.raster import OCCUPIED, UNKNOWN, GridFrame, inside
 from navkit.scan import CEILING_HEIGHT, FLOOR_HEIGHT, MAX_GAP_DEG, obstacle_points, trace_scan
 
 Grid = NDArray[np.uint8]
@@ -106,33 +108,12 @@ class GridConfig(BaseModel):
         return 2 * int(round(self.radius / self.resolution))
 
 
-def xy_to_cell(xy: ArrayLike, config: GridConfig | None = None) -> NDArray[np.int64]:
-    """Metric points (N, 2+) in the grid frame -> integer cells (N, 2) as ``[row, col]``.
-
-    No bounds check: cells outside ``[0, size)`` are returned as they are.
-    """
+def grid_frame(config: GridConfig | None = None) -> GridFrame:
+    """The frame of a location grid (the module docstring's layout): cell ``(row, col)`` of a point
+    ``(x, y)`` is ``(floor(y / res) + size // 2, floor(x / res) + size // 2)``; ``to_cell`` of points
+    (N, 2+) gives integer cells (N, 2) ``[row, col]`` (no bounds check), ``to_world`` the centres."""
     config = config or GridConfig()
-    p = np.asarray(xy, dtype=np.float64)
-    half = config.size // 2
-    cols = np.floor(p[:, 0] / config.resolution).astype(np.int64) + half
-    rows = np.floor(p[:, 1] / config.resolution).astype(np.int64) + half
-    return np.stack([rows, cols], axis=-1)
-
-
-def cell_to_xy(cells: ArrayLike, config: GridConfig | None = None) -> NDArray[np.float64]:
-    """Integer cells (N, 2) ``[row, col]`` -> metric centres (N, 2) ``[x, y]`` in the grid frame."""
-    config = config or GridConfig()
-    c = np.asarray(cells, dtype=np.float64)
-    half = config.size // 2
-    x = (c[:, 1] - half + 0.5) * config.resolution
-    y = (c[:, 0] - half + 0.5) * config.resolution
-    return np.stack([x, y], axis=-1)
-
-
-def occupied_xy(grid: Grid, config: GridConfig | None = None) -> NDArray[np.float64]:
-    """Centres (N, 2) ``[x, y]`` of the occupied cells of a grid, in its frame."""
-    rows, cols = np.nonzero(grid == OCCUPIED)
-    return cell_to_xy(np.stack([rows, cols], axis=-1), config)
+    return GridFrame.centred(config.size, config.resolution)
 
 
 def grid_from_points(points: ArrayLike, config: GridConfig | None = None) -> Grid:
@@ -150,12 +131,14 @@ def grid_from_points(points: ArrayLike, config: GridConfig | None = None) -> Gri
     half = size // 2
 
     obstacles = obstacle_points(p, config)
-    cells = xy_to_cell(obstacles, config)
-    inside = ((cells >= 0) & (cells < size)).all(axis=1)
-    grid[cells[inside, 0], cells[inside, 1]] = OCCUPIED
+    cells = grid_frame(config).to_cell(obstacles)
+    seen = inside(cells, grid.shape)
+    grid[cells[seen, 0], cells[seen, 1]] = OCCUPIED
 
-    # continuous cell coordinates of every return; returns ending in one cell trace the same
-    # cells (up to a sub-cell change of direction), so keep one per end cell
+    # continuous cell coordinates of every return, as the ray tracer takes them (its cells are
+    # floor of these: not grid_frame's floor(x / res) + half, which can differ by one at a cell's
+    # edge); returns ending in one cell trace the same cells (up to a sub-cell change of
+    # direction), so keep one per end cell
     ends = p[:, :2] / config.resolution + half
     end_cells = np.floor(ends).astype(np.int64)
     _, first = np.unique(end_cells[:, 0] * (1 << 32) + end_cells[:, 1], return_index=True)

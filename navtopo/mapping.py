@@ -47,7 +47,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from navkit.geometry import between, compose, compose_with_covariance, inverse_with_covariance, wrap_angle
 from navkit.raster import UNKNOWN
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points, overlap, xy_to_cell
+from navtopo.local_grid import CroppedGrid, GridConfig, grid_frame, grid_from_points, overlap
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
 
@@ -139,7 +139,7 @@ class EdgeEstimate:
 def _information(covariance: NDArray[np.float64]) -> NDArray[np.float64]:
     # a floor of a millimetre and a hundredth of a degree: no measurement is exact
     floor = np.diag([1e-6, 1e-6, np.radians(0.01) ** 2])
-    return np.linalg.inv(np.asarray(covariance, dtype=np.float64) + floor)
+    return np.asarray(np.linalg.inv(np.asarray(covariance, dtype=np.float64) + floor), dtype=np.float64)
 
 
 @dataclass
@@ -159,6 +159,13 @@ class MappingCounters:
     stayed: int = 0  # mapping: outside the location's reach, yet its scan still matched
     closures_from_inside: int = 0  # mapping: edges to a location passed alongside, confirmed over motion
     reasons: dict[str, int] = field(default_factory=dict)
+
+
+def moved_enough(since: NDArray[np.float64], odom: NDArray[np.float64], config: MappingConfig) -> bool:
+    """The update cadence: ``update_distance`` of motion or ``update_angle_deg`` of turning from the
+    odometry pose ``since`` to ``odom`` (the maintainer's updates and the start-up's looks)."""
+    delta = between(since, odom)
+    return bool(np.hypot(delta[0], delta[1]) >= config.update_distance or abs(delta[2]) >= np.radians(config.update_angle_deg))
 
 
 class GraphMaintainer:
@@ -215,11 +222,7 @@ class GraphMaintainer:
     def due(self, odom: NDArray[np.float64]) -> bool:
         if self.current is None or self._odom_at_update is None:
             return True
-        delta = between(self._odom_at_update, odom)
-        return bool(
-            np.hypot(delta[0], delta[1]) >= self.config.update_distance
-            or abs(delta[2]) >= np.radians(self.config.update_angle_deg)
-        )
+        return moved_enough(self._odom_at_update, odom, self.config)
 
     # -- the update --------------------------------------------------------------------------------
 
@@ -340,7 +343,7 @@ class GraphMaintainer:
     def _sees(self, vertex: int, pose: NDArray[np.float64]) -> bool:
         """Did ``vertex``'s scan see the cell at ``pose`` (its frame)?"""
         vertex_grid = self.grids.get(vertex).grid
-        row, col = xy_to_cell(np.asarray(pose, dtype=np.float64)[None, :2], self.grid_config)[0]
+        row, col = grid_frame(self.grid_config).to_cell(np.asarray(pose, dtype=np.float64)[None, :2])[0]
         size = vertex_grid.shape[0]
         return bool(0 <= row < size and 0 <= col < size and vertex_grid[row, col] != UNKNOWN)
 

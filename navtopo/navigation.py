@@ -1,24 +1,12 @@
-"""NavTopo's navigation on a saved graph: start-up localization, the goal server and stepping
-(Muravyev & Yakovlev, Secs. "Localization", "Path Planning" and "Path Following").
+"""NavTopo's navigation on a saved graph: the goal server and stepping (Muravyev & Yakovlev, Secs.
+"Path Planning" and "Path Following").
 
-Start-up localization (``Startup``). The robot is given no pose. Each *look* (after every 0.25 m or
-15° of motion, the graph maintainer's cadence) retrieves the ``top_k`` locations whose descriptors
-are nearest to the scan's and verifies each by scan matching — every location instead at a look
-with no hypothesis and before a commitment (``check_all``: place recognition may rank the right
-place far down); a verified candidate that no live
-hypothesis explains becomes a hypothesis ``(vertex, pose)``, tracked from then on by odometry and
-scan matching like the robot itself (inside its location, or along an edge). A look that verifies a
-hypothesis supports it; two looks in a row that do not drop it; while rivals live, a look verifies
-only by the thresholds without a guess. The robot commits to a hypothesis
-only when it is the one left, has been supported at ``confirm_looks`` looks, has survived
-``confirm_distance`` metres of motion and has been verified in ``confirm_places`` locations (or
-survived ``confirm_distance_one_place`` metres): a wrong localization is worse than none (repeated
-rooms, symmetric corridors verify from one viewpoint, a room and its mirror image over metres of
-motion inside it; rarely across a door into the next location). Meanwhile the robot
-drives toward the goal as the best hypothesis sees it (so confirmation costs no detour when the
-best is right), or, with no hypothesis, explores its own scan toward the free point farthest from
-where it has driven (out of a room through its door rather than round it again). Without a
-commitment after ``timeout`` seconds the trial fails with ``not_localized``.
+Stepping. Until the start-up localization (``navtopo.startup``) commits to where the robot is, each
+tick feeds it the observation and drives toward the goal as its best hypothesis sees it (a
+*tentative* drive: a failed plan removes no edge and ends nothing, and what the scan shows on the
+way is an obstacle), or, with no hypothesis or none that gets anywhere, lets its ``Explorer`` move
+toward open space. From the commitment on, the graph maintainer (``navtopo.mapping``) tracks the
+robot and the robot drives toward the goal over the graph.
 
 The goal server receives a goal as ``(v_goal, T_goal)`` — or as a point in the map frame, turned
 into that form with the vertices' odometry hints (the vertex whose known free area holds the goal,
@@ -42,47 +30,18 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.follower import PathFollower
-from navkit.geometry import between, compose, distance_to_polyline, inverse, transform_points
-from navkit.grid_planning import plan_path
-from navkit.grid_search import inflate_free
+from navkit.geometry import between, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
-from navkit.raster import FREE, OCCUPIED, GridFrame
+from navkit.raster import FREE
 from navkit.scan import obstacle_points
 from navkit.types import Command, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
-from navtopo.local_grid import GridConfig, grid_from_points, xy_to_cell
+from navtopo.local_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.mapping import GraphMaintainer
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
-from navtopo.scan_matching import PreparedGrid, prepare
-
-
-class StartupConfig(BaseModel):
-    """Start-up localization; see the module docstring."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    top_k: int = Field(10, ge=1, description="place-recognition candidates verified at each look")
-    check_all: bool = Field(
-        True,
-        description="verify every location, not only the top_k, at a look with no hypothesis (at most once a metre) and "
-        "before a commitment",
-    )
-    confirm_looks: int = Field(3, ge=1, description="looks that must verify a hypothesis before it is committed")
-    confirm_distance: float = Field(2.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
-    confirm_places: int = Field(
-        2, ge=1, description="locations the hypothesis must have been verified in before it is committed ..."
-    )
-    confirm_distance_one_place: float = Field(
-        4.0, ge=0, description="... unless it has survived this many m of motion (a start and goal in one location)"
-    )
-    drop_after: int = Field(2, ge=1, description="looks in a row without verification drop a hypothesis")
-    same_place: float = Field(1.0, gt=0, description="m: candidates this close (through the graph) are one hypothesis")
-    same_place_in_map: float = Field(
-        1.5, gt=0, description="m: ... or this close by the locations' map poses, where the graph does not join them"
-    )
-    explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
-    timeout: float = Field(60.0, gt=0, description="s of simulated time without a commitment: not_localized")
+from navtopo.scan_matching import prepare
+from navtopo.startup import Explorer, Hypothesis, Localization, Startup
 
 
 class NavigationConfig(BaseModel):
@@ -96,48 +55,6 @@ class NavigationConfig(BaseModel):
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
 
 
-@dataclass
-class Hypothesis:
-    tracker: GraphMaintainer
-    support: int  # looks that verified it
-    odometer_start: float  # the robot's odometer when it was found
-    misses: int = 0
-    places: set[int] = field(default_factory=set)  # the locations it was verified in
-
-    @property
-    def vertex(self) -> int:
-        assert self.tracker.current is not None
-        return self.tracker.current
-
-    @property
-    def pose(self) -> NDArray[np.float64]:
-        return self.tracker.pose_in_current
-
-
-@dataclass
-class Localization:
-    """A start-up localization as the runner checks it against the truth afterwards (the vertex is
-    named by its creation stamp, the one identifier the runner knows it by)."""
-
-    started: float
-    stamp: float
-    vertex_stamp: float
-    pose: NDArray[np.float64]
-    looks: int
-    hypotheses: int
-
-    def as_json(self) -> dict:
-        return {
-            "started": self.started,
-            "stamp": self.stamp,
-            "seconds": round(self.stamp - self.started, 3),
-            "vertex_stamp": self.vertex_stamp,
-            "pose": [float(v) for v in self.pose],
-            "looks": self.looks,
-            "hypotheses": self.hypotheses,
-        }
-
-
 def goal_in_graph(
     graph: TopologicalGraph, goal_xy: NDArray, grid_config: GridConfig, poses: NDArray | None = None
 ) -> tuple[int, NDArray[np.float64]]:
@@ -147,11 +64,12 @@ def goal_in_graph(
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
     if poses is None:
         poses = np.array([vertex.pose_hint for vertex in graph.vertices])
+    frame = grid_frame(grid_config)
     best, best_free = None, None
     for v, vertex in enumerate(graph.vertices):
         local = transform_points(inverse(poses[v]), goal_xy[None])[0]
         distance = float(np.hypot(local[0], local[1]))
-        row, col = xy_to_cell(local[None], grid_config)[0] - (vertex.grid.row0, vertex.grid.col0)
+        row, col = frame.to_cell(local[None])[0] - (vertex.grid.row0, vertex.grid.col0)
         cells = vertex.grid.cells
         free = 0 <= row < cells.shape[0] and 0 <= col < cells.shape[1] and cells[row, col] == FREE
         if best is None or distance < best[0]:
@@ -161,148 +79,6 @@ def goal_in_graph(
     chosen = best_free if best_free is not None else best
     assert chosen is not None, "an empty graph has no goal vertex"
     return chosen[1], chosen[2]
-
-
-class Startup:
-    """Hypotheses of where the robot starts, looked for and confirmed over motion."""
-
-    def __init__(self, maintainer: GraphMaintainer, describe, config: StartupConfig) -> None:
-        self.maintainer = maintainer
-        self.describe = describe
-        self.config = config
-        self.reset()
-
-    map_poses: NDArray[np.float64] | None = None  # (V, 3) the locations in the map frame (navtopo.graph_poses)
-
-    def reset(self) -> None:
-        self.hypotheses: list[Hypothesis] = []
-        self.looks = 0
-        self.started: float | None = None
-        self._last_look_odom: NDArray[np.float64] | None = None
-        self._odometer = 0.0
-        self._last_odom: NDArray[np.float64] | None = None
-        self._checked_at = -np.inf  # the odometer at the last look that verified every location
-        self._perceived: tuple[float, PreparedGrid, NDArray[np.float32]] | None = None  # (stamp, query, descriptor)
-        self.seen = 0
-        self.checks = 0
-
-    def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
-        m = self.maintainer
-        tracker = GraphMaintainer(m.graph, m.describe, m.grid_config, m.matching, m.config, m.localizer.config, False, m.grids)
-        tracker.start_at(vertex, pose, odom)
-        return tracker
-
-    def _due(self, odom: NDArray) -> bool:
-        if self._last_look_odom is None:
-            return True
-        delta = between(self._last_look_odom, odom)
-        cfg = self.maintainer.config
-        return bool(np.hypot(delta[0], delta[1]) >= cfg.update_distance or abs(delta[2]) >= np.radians(cfg.update_angle_deg))
-
-    def step(
-        self, obs: Observation, driven: Hypothesis | None = None, route: list[int] | None = None, force: bool = False
-    ) -> Hypothesis | None:
-        """One tick: track the hypotheses, look when due (or ``force``); the committed hypothesis, or
-        None. ``driven``: the hypothesis the robot drives by, which follows ``route`` (its global
-        path) from location to location as the committed state would."""
-        if self.started is None:
-            self.started = obs.stamp
-        if self._last_odom is not None:
-            delta = between(self._last_odom, obs.odom)
-            self._odometer += float(np.hypot(delta[0], delta[1]))
-        self._last_odom = np.asarray(obs.odom, dtype=np.float64).copy()
-        for h in self.hypotheses:
-            h.tracker.integrate(obs.odom)
-        if not (force or self._due(obs.odom)):
-            return None
-        self._last_look_odom = np.asarray(obs.odom, dtype=np.float64).copy()
-        self.looks += 1
-        self._look(obs, driven, route)
-        committed = self._committed()
-        if committed is not None and self.config.check_all and self._odometer > self._checked_at:
-            # place recognition may rank the right location low (a look-alike ranked above it, 29 m
-            # away, committed on a loop scene): no commitment while another place verifies too
-            if self._recognise(obs, check_all=True):
-                return None
-        return committed
-
-    def _look(self, obs: Observation, driven: Hypothesis | None, route: list[int] | None) -> None:
-        # the live hypotheses, each checked where it says the robot is; among rivals, by the
-        # thresholds without a guess (a look-alike matches a guess well enough, not as well as
-        # the right place does)
-        rivals = len(self.hypotheses) > 1
-        for h in self.hypotheses:
-            h.tracker.localizer.strict = rivals
-            h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
-            if h.tracker.last_verified:
-                h.support, h.misses = h.support + 1, 0
-                h.places.add(h.vertex)
-            else:
-                h.misses += 1
-        self.hypotheses = [h for h in self.hypotheses if h.misses < self.config.drop_after]
-        check_all = self.config.check_all and not self.hypotheses and self._odometer >= self._checked_at + 1.0
-        self._recognise(obs, check_all)
-
-    def _recognise(self, obs: Observation, check_all: bool) -> int:
-        """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
-        matching; how many were added."""
-        m = self.maintainer
-        if self._perceived is None or self._perceived[0] != obs.stamp:  # once a look, though asked twice
-            query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
-            self._perceived = (obs.stamp, query, self.describe(obs.points))
-        _, query, descriptor = self._perceived
-        if check_all:
-            self._checked_at = self._odometer
-            self.checks += 1
-        top_k = len(m.graph) if check_all else self.config.top_k
-        found = m.localizer.localize(query, descriptor, top_k=top_k)
-        added = 0
-        for located in found:
-            if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
-                tracker = self._tracker(located.vertex, located.pose, obs.odom)
-                self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex}))
-                self.seen += 1
-                added += 1
-        return added
-
-    def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
-        """Does (vertex, pose) put the robot where ``h`` does? Compared through the graph, or, for
-        locations the graph does not join closely (a place mapped twice), through their map poses."""
-        graph = self.maintainer.graph
-        if vertex == h.vertex:
-            relative = np.zeros(3)
-        else:
-            path, length = graph.shortest_path(h.vertex, vertex)
-            if path is None or length > 4 * self.maintainer.config.max_edge_length:
-                if self.map_poses is None:
-                    return False
-                here = compose(self.map_poses[h.vertex], h.pose)
-                there = compose(self.map_poses[vertex], pose)
-                return float(np.hypot(*(here[:2] - there[:2]))) <= self.config.same_place_in_map
-            relative = graph.path_pose(path)  # vertex in h.vertex's frame
-        predicted = compose(relative, pose)  # the robot in h.vertex's frame, by the candidate
-        return float(np.hypot(*(predicted[:2] - h.pose[:2]))) <= self.config.same_place
-
-    def _committed(self) -> Hypothesis | None:
-        if len(self.hypotheses) != 1:
-            return None
-        h = self.hypotheses[0]
-        moved = self._odometer - h.odometer_start
-        if h.support < self.config.confirm_looks or moved < self.config.confirm_distance:
-            return None
-        # a room and its mirror image agree from inside; the corridor outside the door tells them apart
-        if len(h.places) >= self.config.confirm_places or moved >= self.config.confirm_distance_one_place:
-            return h
-        return None
-
-    @property
-    def odometer(self) -> float:
-        """Metres of odometry since the start-up began."""
-        return self._odometer
-
-    def best(self) -> Hypothesis | None:
-        """The hypothesis to drive by while none is committed: most supported."""
-        return max(self.hypotheses, key=lambda h: h.support, default=None)
 
 
 @dataclass
@@ -318,6 +94,7 @@ class Navigator:
     graph: TopologicalGraph
     maintainer: GraphMaintainer
     startup: Startup
+    explorer: Explorer  # the start-up's moves toward open space
     global_planner: GlobalPlanner
     local: LocalPlanner
     unions: UnionGrids
@@ -341,11 +118,7 @@ class Navigator:
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
     _progress: tuple[float, NDArray[np.float64]] | None = None
     _stuck_once: bool = False
-    _explore: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # (odom at start, path in that frame)
-    _tentative: Hypothesis | None = None
-    _explore_until: float = 0.0  # the startup odometer reading where the current exploring move ends
-    _progress_mark: tuple[float, float] | None = None  # (stamp, startup odometer) of the last progress
-    _trail: list[NDArray[np.float64]] = field(default_factory=list)  # start-up: where the robot drove (odometry frame)
+    _tentative: Hypothesis | None = None  # the start-up hypothesis the robot drives by
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -381,11 +154,8 @@ class Navigator:
         self._obstacle_vertex = None
         self._progress = None
         self._stuck_once = False
-        self._explore = None
+        self.explorer.reset()
         self._tentative = None
-        self._explore_until = 0.0
-        self._trail = []
-        self._progress_mark = None
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -416,128 +186,54 @@ class Navigator:
         event = self.maintainer.update(obs.points, obs.odom, obs.stamp, route=self._route, force=self._at_path_end())
         if self.maintainer.current != before or event == "localized":
             self._path_vertex = None  # a new frame: plan again
-        return self._drive(obs, self.maintainer.current, self.maintainer.pose_in_current)
+        current = self.maintainer.current
+        assert current is not None, "a localized robot is in a location"
+        return self._drive(obs, current, self.maintainer.pose_in_current)
 
     def _step_unlocalized(self, obs: Observation) -> Command:
-        startup = self.startup
-        here = np.asarray(obs.odom, dtype=np.float64)[:2].copy()
-        if not self._trail or np.hypot(*(here - self._trail[-1])) >= 0.25:
-            self._trail.append(here)
+        startup, explorer = self.startup, self.explorer
+        explorer.record(obs.odom)
         driven = self._tentative if self._tentative in startup.hypotheses else None
         committed = startup.step(obs, driven, self._route if driven is not None else None, force=self._at_path_end())
         if committed is not None:
-            self.localized = True
-            self.maintainer.start_at(committed.vertex, committed.pose, obs.odom)
-            self.localizations.append(
-                Localization(
-                    started=float(obs.stamp if startup.started is None else startup.started),
-                    stamp=obs.stamp,
-                    vertex_stamp=self.graph.vertices[committed.vertex].stamp,
-                    pose=committed.pose.copy(),
-                    looks=startup.looks,
-                    hypotheses=startup.seen,
-                )
-            )
-            self._path_vertex = None
-            return self._drive(obs, committed.vertex, committed.pose)
-        if startup.started is not None and obs.stamp - startup.started > startup.config.timeout:
+            return self._commit(obs, committed)
+        if startup.timed_out(obs.stamp):
             self.status = NavStatus(Status.FAILED, "not_localized")
             return Command()
         best = startup.best()
         odometer = startup.odometer
-        if self._explore is not None and odometer < self._explore_until and not self.follower.reached:
-            return self._explore_step(obs)  # an exploring move runs to its end
-        if best is not None and not self._no_progress(obs.stamp, odometer):
+        if explorer.under_way(odometer):
+            return explorer.step(obs, self.counters)  # an exploring move runs to its end
+        if best is not None and not explorer.no_progress(obs.stamp, odometer):
             # drive as the best hypothesis sees it: confirmation on the way
-            if best is not self._tentative or self._explore is not None:
-                self._tentative, self._path_vertex, self._route, self._explore = best, None, None, None
+            if best is not self._tentative or explorer.move is not None:
+                self._tentative, self._path_vertex, self._route = best, None, None
+                explorer.stop()
             return self._drive(obs, best.vertex, best.pose, tentative=True)
         # no hypothesis, or driving by the best one gets nowhere (it may be the wrong one, or two
-        # places look alike from here): move toward open space for a new view
+        # places look alike from here): move toward open space for a new view (no move is under
+        # way here: a new one begins)
         self._tentative = None
-        if self._explore is None or odometer >= self._explore_until or self.follower.reached:
-            self._explore = None
-            self._explore_until = odometer + startup.config.explore_distance
-            self._progress_mark = (obs.stamp, odometer)
-        return self._explore_step(obs)
+        explorer.begin(obs.stamp, odometer)
+        return explorer.step(obs, self.counters)
 
-    def _no_progress(self, stamp: float, odometer: float) -> bool:
-        """While not localized: less than 0.3 m of motion in the last 5 s."""
-        if self._progress_mark is None or odometer - self._progress_mark[1] >= 0.3:
-            self._progress_mark = (stamp, odometer)
-            return False
-        return stamp - self._progress_mark[0] > 5.0
-
-    def _explore_step(self, obs: Observation) -> Command:
-        """No hypothesis: drive toward the most open direction of the robot's own scan. The way ahead
-        is checked against every new scan: a path planned through cells the first scan did not see
-        (a wall seen edge-on from a doorway) is given up at the first scan that shows a wall on it."""
-        if self._explore is not None and len(self._scan_on_path(obs, between(self._explore[0], obs.odom))):
-            self._explore = None
-            self.follower.clear()
-            self.counters["explore_blocked"] += 1
-        if self._explore is None or self.follower.reached or not self.follower.has_path:
-            path = self._open_space_path(obs)
-            if path is None:
-                return Command(0.0, self.follower.config.max_angular / 2)
-            self._explore = (np.asarray(obs.odom, dtype=np.float64).copy(), path)
-            self.follower.set_path(path)
-            self.counters["explore_moves"] += 1
-        start_odom, _ = self._explore
-        return self.follower.command(between(start_odom, obs.odom))
-
-    def _scan_on_path(self, obs: Observation, pose: NDArray) -> NDArray[np.float64]:
-        """The scan's obstacle returns (in the path's frame, the robot at ``pose`` there) within the
-        robot's radius of the path ahead: the robot would touch them."""
-        if not self.follower.has_path:
-            return np.zeros((0, 2))
-        ahead = np.vstack([pose[None, :2], self.follower.path_ahead(self.config.block_check_distance)])
-        points = np.asarray(obstacle_points(obs.points, self.maintainer.grid_config)[:, :2], dtype=np.float64)
-        # returns farther from the robot than the way ahead reaches (plus the radius) cannot touch it
-        reach = float(np.hypot(*(ahead - pose[:2]).T).max()) + self.robot_radius
-        xy = transform_points(pose, points[np.hypot(points[:, 0], points[:, 1]) <= reach])
-        return xy[distance_to_polyline(xy, ahead) < self.robot_radius]
-
-    def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
-        """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or
-        twice, or half that) away, the one farthest from where the start-up has already driven (the
-        way out of a room leads through its door, not round the room again), forward first on ties."""
-        grid_config = self.maintainer.grid_config
-        grid = grid_from_points(obs.points, grid_config)
-        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        # the local planner's fallbacks: with its margin, then the robot's radius alone (a narrow
-        # door); in the scan's free space, then between the walls it saw (a door seen at a slant
-        # leaves little free space); the ends in free space it saw
-        masks = [
-            inflate_free(space, radius, frame.resolution)
-            for radius in (self.local.wide, self.local.tight)
-            for space in (grid == FREE, grid != OCCUPIED)
-        ]
-        passable = masks[-1] & (grid == FREE)
-        angles = np.radians(np.arange(0.0, 360.0, 15.0))
-        reach = self.startup.config.explore_distance
-        directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-        ends = np.vstack([directions * reach * scale for scale in (2.0, 1.0, 0.5)])
-        cells = frame.to_cell(ends)
-        inside = np.all((cells >= 0) & (cells < passable.shape), axis=1)
-        ok = np.flatnonzero(inside)[passable[cells[inside, 0], cells[inside, 1]]]
-        if not len(ok):
-            return None
-        trail = np.array(self._trail) if self._trail else np.zeros((0, 2))
-        odom = np.asarray(obs.odom, dtype=np.float64)
-        in_odom = transform_points(odom, ends[ok])
-        novelty = (
-            np.min(np.hypot(*(in_odom[:, None, :] - trail[None, :, :]).transpose(2, 0, 1)), axis=1)
-            if len(trail)
-            else np.zeros(len(ok))
+    def _commit(self, obs: Observation, committed: Hypothesis) -> Command:
+        """The start-up committed: track the robot from the hypothesis on, record it, drive."""
+        startup = self.startup
+        self.localized = True
+        self.maintainer.start_at(committed.vertex, committed.pose, obs.odom)
+        self.localizations.append(
+            Localization(
+                started=float(obs.stamp if startup.started is None else startup.started),
+                stamp=obs.stamp,
+                vertex_stamp=self.graph.vertices[committed.vertex].stamp,
+                pose=committed.pose.copy(),
+                looks=startup.looks,
+                hypotheses=startup.seen,
+            )
         )
-        forward = np.cos(np.tile(angles, 3))[ok]
-        order = np.lexsort((-forward, -np.round(novelty / 0.5)))  # novelty in 0.5 m steps, then forward
-        for k in ok[order][:8]:
-            planned = plan_path(masks, frame, np.zeros(2), ends[k], snap_cells=5)
-            if planned is not None:
-                return planned.points
-        return None
+        self._path_vertex = None
+        return self._drive(obs, committed.vertex, committed.pose)
 
     # -- planning and following ----------------------------------------------------------------------------
 
@@ -560,7 +256,7 @@ class Navigator:
         self._remember_obstacles(obs, vertex, pose)
         if tentative:
             # the hypothesis may be another place's map: what the scan shows on the way is an obstacle
-            hits = self._scan_on_path(obs, pose)
+            hits = self.explorer.scan_on_path(obs, pose)
             if len(hits):
                 self.obstacles.mark(hits)
                 self.counters["tentative_blocked"] += 1

@@ -24,7 +24,6 @@ Frames: a union grid is centred on ``v_cur``'s observation point and axis-aligne
 
 from __future__ import annotations
 
-import heapq
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -38,7 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from navkit import grid_search
 from navkit.geometry import compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, plan_path
-from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import GridConfig, warp_window, warped_bounds
 
@@ -107,24 +106,8 @@ class GlobalPlanner:
 
     def _search(self) -> None:
         assert self.goal is not None
-        n = len(self.graph)
-        distance = np.full(n, np.inf)
-        toward = np.full(n, -1, dtype=np.int64)
-        distance[self.goal] = 0.0
-        heap = [(0.0, self.goal)]
-        while heap:
-            d, u = heapq.heappop(heap)
-            if d > distance[u]:
-                continue
-            for v, pose in self.graph.neighbours(u):
-                if frozenset((u, v)) in self.removed:
-                    continue
-                nd = d + float(np.hypot(pose[0], pose[1]))
-                if nd < distance[v]:
-                    distance[v] = nd
-                    toward[v] = u
-                    heapq.heappush(heap, (nd, v))
-        self._distance, self._toward_goal = distance, toward
+        # from the goal: each vertex's predecessor is its next vertex toward the goal
+        self._distance, self._toward_goal = self.graph.dijkstra(self.goal, self.removed)
 
     def path(self, start: int) -> list[int] | None:
         """Vertices from ``start`` to the goal, or None if the goal cannot be reached."""
@@ -224,13 +207,12 @@ class UnionGrid:
             )
         return self._wall_distance
 
-    def values_at(self, xy: NDArray, array: NDArray, outside: float | int) -> NDArray:
+    def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
         cells = self.frame.to_cell(xy)
-        height, width = array.shape
-        inside = (cells[:, 0] >= 0) & (cells[:, 0] < height) & (cells[:, 1] >= 0) & (cells[:, 1] < width)
+        on_grid = inside(cells, array.shape)
         out = np.full(len(cells), outside, dtype=array.dtype)
-        out[inside] = array[cells[inside, 0], cells[inside, 1]]
+        out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
         return out
 
     @property
@@ -266,6 +248,8 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
     r1 = min(window[0] + known_rows[-1] + 3, size) - window[0]
     c0 = max(window[2] + known_cols[0] - 2, 0) - window[2]
     c1 = min(window[2] + known_cols[-1] + 3, size) - window[2]
+    # the corner of the kept part's first cell on the canvas centred on the vertex's observation point;
+    # a map-style frame from there (floor((x - origin) / res)), as the union grids have always been read
     origin = np.array([(window[2] + c0 - size // 2) * res, (window[0] + r0 - size // 2) * res])
     return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res))
 
@@ -403,8 +387,8 @@ def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
     stamp = np.zeros(union.cells.shape, np.uint8)
     cells = union.frame.to_cell(xy)
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < stamp.shape[0]) & (cells[:, 1] >= 0) & (cells[:, 1] < stamp.shape[1])
-    stamp[cells[inside, 0], cells[inside, 1]] = 1
+    on_grid = inside(cells, stamp.shape)
+    stamp[cells[on_grid, 0], cells[on_grid, 1]] = 1
     return stamp
 
 

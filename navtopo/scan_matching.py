@@ -39,8 +39,8 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.geometry import inverse, transform_points, wrap_angle
-from navkit.raster import OCCUPIED, UNKNOWN
-from navtopo.local_grid import Grid, GridConfig, cell_to_xy
+from navkit.raster import OCCUPIED, UNKNOWN, GridFrame
+from navtopo.local_grid import Grid, GridConfig, grid_frame
 
 
 class MatchingConfig(BaseModel):
@@ -144,6 +144,9 @@ class PreparedGrid:
         self.config = config or MatchingConfig()
         self.grid_config = grid_config or GridConfig()
         self.resolution = self.grid_config.resolution
+        # the grid's own frame, centred on its observation point (``navtopo.local_grid``); the compiled
+        # kernels below take its centre cell ``half`` and do its arithmetic themselves
+        self.frame = GridFrame.centred(grid.shape[0], self.resolution)
         self.half = grid.shape[0] // 2
         # everything below works on the bounding box of the known cells plus a margin: walls lie
         # inside it, and a point outside is unknown and far from every wall
@@ -163,7 +166,7 @@ class PreparedGrid:
         rows, cols = np.nonzero(self.walls)
         rows, cols = rows + self.row0, cols + self.col0
         self.occupied_cells = np.stack([rows, cols], axis=1)
-        self.occupied_xy = cell_to_xy(self.occupied_cells, self.grid_config)
+        self.occupied_xy = grid_frame(self.grid_config).to_world(self.occupied_cells)
         self.known_count = int(np.count_nonzero(self.crop))
         if len(self.occupied_xy):
             distance, labels = cv2.distanceTransformWithLabels(
@@ -211,14 +214,9 @@ class PreparedGrid:
         keypoints, descriptors = orb.detectAndCompute(image, None)
         if descriptors is None:
             return np.zeros((0, 2)), None
-        pixels = np.array([kp.pt for kp in keypoints], dtype=np.float64) - border
-        xy = np.stack(
-            [
-                (pixels[:, 0] + self.col0 - self.half + 0.5) * self.resolution,
-                (pixels[:, 1] + self.row0 - self.half + 0.5) * self.resolution,
-            ],
-            axis=1,
-        )
+        pixels = np.array([kp.pt for kp in keypoints], dtype=np.float64) - border  # (x, y) in the crop
+        # sub-cell positions of the grid's cells [row, col], to metres in its frame
+        xy = self.frame.to_world(np.stack([pixels[:, 1] + self.row0, pixels[:, 0] + self.col0], axis=1))
         return xy, descriptors
 
 
@@ -500,7 +498,7 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
     return np.array([x, y, yaw])
 
 
-def _field(reference: PreparedGrid) -> tuple:
+def _field(reference: PreparedGrid) -> tuple[NDArray[np.float32], int, int, int, float]:
     """The reference's distance field and its crop's placement, as the field functions take them."""
     return reference.distance, reference.row0, reference.col0, reference.half, reference.resolution
 
@@ -512,7 +510,8 @@ def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, co
     fixed: the matches whose rotation is off by a degree are the ones this calls uncertain
     (BENCHMARKS.md, "Edge measurements")."""
     pose = np.asarray(pose, dtype=np.float64)
-    h, _, squares, used = _field_normal_equations(query.occupied_xy, *pose, *_field(reference), config.field_cutoff)
+    x, y, yaw = pose[0], pose[1], pose[2]
+    h, _, squares, used = _field_normal_equations(query.occupied_xy, x, y, yaw, *_field(reference), config.field_cutoff)
     if used <= 3:
         return np.diag([1.0, 1.0, 1.0])  # nothing fixes the pose: a metre and a radian
     variance = max(squares / (used - 3), (0.25 * reference.resolution) ** 2)

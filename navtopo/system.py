@@ -3,9 +3,10 @@
 ``NavTopo`` composes the parts and owns no algorithm itself: the graph maintainer (mapping and
 tracking the robot in the graph, ``navtopo.mapping``), the localizer (``navtopo.localization``),
 the place-recognition descriptor (``navtopo.place_recognition``), the two-level planner
-(``navtopo.planning``), the goal server with start-up localization (``navtopo.navigation``) and
-the shared follower. Mapping builds the graph from scans and odometry alone; ``save`` writes the
-graph folder with the resolved config; ``load`` restores it for navigation.
+(``navtopo.planning``), the start-up localization and its exploring moves (``navtopo.startup``),
+the goal server and stepping (``navtopo.navigation``) and the shared follower. Mapping builds the
+graph from scans and odometry alone; ``save`` writes the graph folder with the resolved config;
+``load`` restores it for navigation.
 
 Memory (``memory()``, the runner's breakdown): ``map`` is the graph as stored (location grids,
 odometry hints, stamps, edges); ``localization`` the descriptors and the prepared grids of the
@@ -32,10 +33,11 @@ from navtopo.graph_poses import hint_chain, relaxed_poses
 from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
-from navtopo.navigation import NavigationConfig, Navigator, Startup, StartupConfig
+from navtopo.navigation import NavigationConfig, Navigator
 from navtopo.place_recognition import available_descriptors, default_weights_path, make_descriptor
 from navtopo.planning import GlobalPlanner, LocalPlanner, PlanningConfig, UnionGrids
 from navtopo.scan_matching import MatchingConfig
+from navtopo.startup import Explorer, Startup, StartupConfig
 
 
 class NavTopoConfig(BaseModel):
@@ -92,14 +94,17 @@ class NavTopo:
         )
         robot_radius = float(context.robot.radius) if context is not None else 0.3
         self.unions = UnionGrids(self.graph, config.grid, config.planning)
+        local = LocalPlanner(self.unions, robot_radius, config.planning)
+        follower = PathFollower(config.follower.for_robot(context))
         self.navigator = Navigator(
             graph=self.graph,
             maintainer=self.maintainer,
             startup=Startup(self.maintainer, self.descriptor.embed, config.startup),
+            explorer=Explorer(follower, local, config.grid, config.startup, robot_radius, config.navigation.block_check_distance),
             global_planner=GlobalPlanner(self.graph),
-            local=LocalPlanner(self.unions, robot_radius, config.planning),
+            local=local,
             unions=self.unions,
-            follower=PathFollower(config.follower.for_robot(context)),
+            follower=follower,
             config=config.navigation,
             robot_radius=robot_radius,
         )

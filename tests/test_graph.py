@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from navkit import geometry as se2
+from navkit.errors import BenchError
 from navkit.raster import FREE, OCCUPIED
 from navtopo.graph import GraphFormatError, TopologicalGraph
 from navtopo.local_grid import CroppedGrid
@@ -114,6 +115,8 @@ def test_a_corrupt_saved_graph_is_refused_with_one_clear_line(tmp_path, damage, 
     with pytest.raises(GraphFormatError) as info:
         TopologicalGraph.load(folder)
     assert message in str(info.value) and "\n" not in str(info.value)
+    # an input refused (the command line's one error base, exit code 2), still a ValueError for callers
+    assert isinstance(info.value, BenchError) and info.value.exit_code == 2 and isinstance(info.value, ValueError)
 
 
 def test_the_relaxation_reads_the_hints_noise_and_beats_both_inputs():

@@ -18,9 +18,9 @@ from navkit.scan import obstacle_points
 from navtopo.local_grid import (
     CroppedGrid,
     GridConfig,
-    cell_to_xy,
     decode_png,
     encode_png,
+    grid_frame,
     grid_from_points,
     known_iou,
     known_overlap,
@@ -28,7 +28,6 @@ from navtopo.local_grid import (
     warp,
     warp_window,
     warped_bounds,
-    xy_to_cell,
 )
 
 WALL_HEIGHT = 2.6
@@ -124,7 +123,7 @@ def box_room():
 
 def world_to_grid_cells(world_xy, robot_pose, config):
     """Cells of the robot-centred grid under world points (N, 2)."""
-    return xy_to_cell(transform_points(inverse(robot_pose), world_xy), config)
+    return grid_frame(config).to_cell(transform_points(inverse(robot_pose), world_xy))
 
 
 def cells_of_rect(xmin, xmax, ymin, ymax, robot_pose, config, step=0.05):
@@ -162,10 +161,16 @@ def test_obstacle_band_keeps_a_low_box_and_drops_floor_and_ceiling():
 def test_cell_conversions_round_trip():
     config = GridConfig()
     xy = np.array([[0.05, 0.05], [-0.05, -0.05], [2.04, -7.31]])
-    cells = xy_to_cell(xy, config)
+    cells = grid_frame(config).to_cell(xy)
     assert cells[0].tolist() == [150, 150] and cells[1].tolist() == [149, 149]
     assert cells[2].tolist() == [150 - 74, 150 + 20]  # row from y, col from x
-    np.testing.assert_allclose(cell_to_xy(cells, config), [[0.05, 0.05], [-0.05, -0.05], [2.05, -7.35]])
+    np.testing.assert_allclose(grid_frame(config).to_world(cells), [[0.05, 0.05], [-0.05, -0.05], [2.05, -7.35]])
+    # the location grid's arithmetic exactly: floor(x / res) + half, centres (c - half + 0.5) * res
+    points = np.random.default_rng(0).uniform(-15.0, 15.0, (1000, 2))
+    half = config.size // 2
+    expected = np.floor(points[:, ::-1] / config.resolution).astype(np.int64) + half
+    assert np.array_equal(grid_frame(config).to_cell(points), expected)
+    assert np.array_equal(grid_frame(config).to_world(expected), (expected[:, ::-1] - half + 0.5) * config.resolution)
 
 
 def test_box_room_grid_has_free_interior_and_occupied_walls(room_grid):
@@ -194,7 +199,7 @@ def test_box_room_grid_has_free_interior_and_occupied_walls(room_grid):
 
     # the interior is free, except the boxes and what they hide from the robot
     interior = cells_of_rect(x0 + 0.15, x1 - 0.15, y0 + 0.15, y1 - 0.15, ROBOT, config)
-    interior_xy = transform_points(ROBOT, cell_to_xy(interior, config))
+    interior_xy = transform_points(ROBOT, grid_frame(config).to_world(interior))
     hidden = np.zeros(len(interior), dtype=bool)
     for bx0, bx1, by0, by1, _ in (LOW_BOX, HIGH_BOX):
         for t in np.linspace(0.0, 1.0, 60):  # does the segment robot -> cell cross the box?
@@ -223,7 +228,7 @@ def test_low_box_is_an_obstacle_and_the_ceiling_is_not(room_grid):
     # no occupied cell in the open interior: the ceiling above it is not an obstacle
     x0, x1, y0, y1 = ROOM
     inner = cells_of_rect(x0 + 0.3, x1 - 0.3, y0 + 0.3, y1 - 0.3, ROBOT, config)
-    inner_xy = transform_points(ROBOT, cell_to_xy(inner, config))
+    inner_xy = transform_points(ROBOT, grid_frame(config).to_world(inner))
     off_boxes = np.ones(len(inner), dtype=bool)
     for bx0, bx1, by0, by1, _ in (LOW_BOX, HIGH_BOX):
         off_boxes &= ~(
@@ -255,11 +260,11 @@ def test_directions_without_returns_stay_unknown():
     grid = grid_from_points(cloud, config)
     # straight behind the robot (robot-frame azimuth 180°): no return, no free cell past 1 m
     behind = np.stack([-np.arange(1.0, 2.5, 0.1), np.zeros(15)], axis=1)
-    rows, cols = xy_to_cell(behind, config).T
+    rows, cols = grid_frame(config).to_cell(behind).T
     assert np.all(grid[rows, cols] == UNKNOWN)
     # while in front everything up to the wall is free
     ahead = np.stack([np.arange(0.5, 4.0, 0.1), np.zeros(35)], axis=1)
-    rows, cols = xy_to_cell(ahead, config).T
+    rows, cols = grid_frame(config).to_cell(ahead).T
     assert np.all(grid[rows, cols] == FREE)
 
 
@@ -270,13 +275,13 @@ def test_warp_moves_a_cell_to_where_the_other_frame_sees_it():
     rng = np.random.default_rng(3)
     for _ in range(50):
         grid = np.zeros((config.size, config.size), dtype=np.uint8)
-        cell = xy_to_cell(rng.uniform(-5.0, 5.0, (1, 2)), config)
+        cell = grid_frame(config).to_cell(rng.uniform(-5.0, 5.0, (1, 2)))
         grid[cell[0, 0], cell[0, 1]] = OCCUPIED
         pose = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-np.pi, np.pi)])
         # a single cell may vanish under nearest-neighbour rotation: test a 3x3 patch's centre
         grid[cell[0, 0] - 1 : cell[0, 0] + 2, cell[0, 1] - 1 : cell[0, 1] + 2] = OCCUPIED
-        expected = transform_points(inverse(pose), cell_to_xy(cell, config))[0]
-        moved = cell_to_xy(np.argwhere(warp(grid, pose, config) == OCCUPIED), config)
+        expected = transform_points(inverse(pose), grid_frame(config).to_world(cell))[0]
+        moved = grid_frame(config).to_world(np.argwhere(warp(grid, pose, config) == OCCUPIED))
         assert np.linalg.norm(moved.mean(axis=0) - expected) < 0.05
     # a pure translation by whole cells is exact
     grid = np.zeros((config.size, config.size), dtype=np.uint8)

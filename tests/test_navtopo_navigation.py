@@ -321,15 +321,15 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     obs = Observation(stamp=0.0, points=np.vstack([across, along]).astype(np.float32), odom=np.zeros(3))
     straight = np.array([[0.0, 0.0], [3.0, 0.0]])
     nav.follower.set_path(straight)
-    hits = nav._scan_on_path(obs, np.zeros(3))
+    hits = nav.explorer.scan_on_path(obs, np.zeros(3))
     assert len(hits) and np.allclose(hits[:, 0], 1.0) and np.abs(hits[:, 1]).max() < radius  # the wall's middle only
     nav.follower.set_path(np.array([[0.0, 0.0], [-1.0, 0.0]]))
-    assert len(nav._scan_on_path(obs, np.zeros(3))) == 0  # behind the robot, off the way
+    assert len(nav.explorer.scan_on_path(obs, np.zeros(3))) == 0  # behind the robot, off the way
 
     # an exploring move through that wall is given up for one that keeps clear of it
     nav.follower.set_path(straight)
-    nav._explore = (np.zeros(3), straight)
-    nav._explore_step(obs)
+    nav.explorer.move = (np.zeros(3), straight)
+    nav.explorer.step(obs, nav.counters)
     assert nav.counters["explore_blocked"] == 1
     if nav.follower.has_path:
         assert se2.distance_to_polyline(across[:, :2], nav.follower.path).min() >= radius
@@ -337,7 +337,7 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     # a tentative drive marks them as obstacles, so that its next local plan goes round
     nav.obstacles.clear()
     nav.follower.set_path(straight)
-    hits = nav._scan_on_path(obs, np.zeros(3))
+    hits = nav.explorer.scan_on_path(obs, np.zeros(3))
     nav.obstacles.mark(hits)
     assert nav._path_blocked(np.zeros(3))
 
@@ -345,8 +345,8 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
 def _startup(graph: TopologicalGraph, describe, **config):
     from navtopo.localization import LocalizationConfig
     from navtopo.mapping import GraphMaintainer, MappingConfig
-    from navtopo.navigation import Startup, StartupConfig
     from navtopo.scan_matching import MatchingConfig
+    from navtopo.startup import Startup, StartupConfig
 
     maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
     return Startup(maintainer, describe, StartupConfig(**config))
