@@ -20,7 +20,8 @@ maps, trajectories, ground truth) byte for byte, JSON files inside maps as JSON 
 Removed keys: wall-clock timings (``compute_s``, ``planning_ms``, ``planning_ms_samples``,
 ``first_plan_ms``, ``map_load_ms``, ``ms_per_scan``, ``mapping_ms_per_scan``), the process's own
 figures (``rss_bytes``, ``rss_process_bytes``, ``rss_before_load``), where and when it ran
-(``worker``, ``created``, ``git_revision``, ``versions``, ``machine``). Memory breakdowns are
+(``worker``, ``created``, ``git_revision``, ``versions``, ``machine``, and the manifest's
+``scenario.file``, a path into the checkout that ran). Memory breakdowns are
 exact byte counts of data structures and are compared.
 """
 
@@ -139,7 +140,11 @@ def compare_file(before: Path, after: Path, relative: Path) -> list[str]:
             name,
         )
     if relative.suffix == ".json":
-        return differences(strip(json.loads(before.read_text())), strip(json.loads(after.read_text())), name)
+        a, b = strip(json.loads(before.read_text())), strip(json.loads(after.read_text()))
+        if relative.name == "manifest.json":  # where the checkout lies, not what ran
+            for manifest in (a, b):
+                manifest.get("scenario", {}).pop("file", None)
+        return differences(a, b, name)
     if before.read_bytes() != after.read_bytes():
         return [f"{name}: the bytes differ"]
     return []
