@@ -20,6 +20,7 @@ float32 points, odometry) is stored with the true pose, in an ``.npz`` under a c
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import subprocess
 import time
@@ -32,6 +33,7 @@ import yaml
 from numpy.typing import NDArray
 
 from navkit import geometry as se2
+from navkit.files import atomic_write
 from navkit.types import Observation
 from runners.route import RouteDrive
 from runners.sim import Simulator
@@ -115,10 +117,9 @@ class Recording:
         return se2.between(np.asarray(start, dtype=np.float64)[None, :], self.true)
 
     def save(self, path: Path) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
+        buffer = io.BytesIO()
         np.savez(
-            tmp,
+            buffer,
             stamps=self.stamps,
             odom=self.odom,
             true=self.true,
@@ -126,7 +127,7 @@ class Recording:
             points=self.points,
             meta=np.array(json.dumps(self.meta)),
         )
-        tmp.replace(path)
+        atomic_write(path, buffer.getvalue())
 
     @classmethod
     def load(cls, path: Path) -> Recording:

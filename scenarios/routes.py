@@ -13,14 +13,9 @@ the fit space: a depth-first walk that goes down every branch to its end and bac
 same walk backwards, alternately, until the route is at least ``min_length`` long (places are
 seen from both directions). The skeleton and the walk are made drivable:
 
-1. skeleton pixels in roomy space are kept; the narrow stretches between them (where the
-   skeleton passes a door or a gap) are kept only where they join parts of the roomy skeleton
-   that are not joined otherwise, widest first: a route goes through a door to reach a room,
-   never through a gap beside a chair it can go round, never into a dead end narrower than
-   the roomy space (its tip would be too tight to turn at), nor through a gap to a pocket of
-   less than ``MIN_ROOMY_M2`` of roomy space;
-2. loops round small obstacles (chairs, pillars, lidar speckles: less than
-   ``SMALL_OBSTACLE_M2``) are opened at their narrowest point; short corner spurs are pruned;
+1. the skeleton keeps roomy space, narrow stretches only where they join what is not joined
+   otherwise (doors to rooms), and loops round small obstacles opened (``scenarios.skeleton``);
+2. the walk goes down every branch of it and back;
 3. every narrow stretch of the walk is crossed on one straight line from an approach point in
    roomy space up to ``APPROACH_M`` before it, laid out for the direction of travel (the
    backward tour gets its own), so the follower has settled when it reaches the door;

@@ -9,6 +9,7 @@ nothing is fetched when loading)::
 
 from __future__ import annotations
 
+import io
 from abc import abstractmethod
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -19,6 +20,8 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 from torch import nn
+
+from navkit.files import atomic_write
 
 from .registry import Cloud, PlaceDescriptor
 
@@ -109,8 +112,6 @@ class LearnedDescriptor(PlaceDescriptor):
 
     def save_weights(self, path: str | Path, meta: dict[str, Any] | None = None) -> Path:
         """Write the network's weights and architecture; returns the path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         checkpoint = {
             "format": WEIGHTS_FORMAT,
             "descriptor": self.name,
@@ -118,10 +119,9 @@ class LearnedDescriptor(PlaceDescriptor):
             "state_dict": {k: v.detach().clone() for k, v in self.network.state_dict().items()},
             "meta": dict(meta or {}),
         }
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        torch.save(checkpoint, tmp)
-        tmp.replace(path)
-        return path
+        buffer = io.BytesIO()
+        torch.save(checkpoint, buffer)
+        return atomic_write(path, buffer.getvalue())
 
     def load_weights(self, path: str | Path) -> None:
         """Load weights written by ``save_weights`` for this descriptor and architecture."""
