@@ -409,12 +409,13 @@ def drive_trial(
 
 def ending_detail(ending: str, status: NavStatus, true_pose: NDArray[np.float64], limit: float, final: float) -> str | None:
     """The one line of a failed trial: the runner's words on an ending it decided (where the robot
-    was, by the truth; which clock ran out), then the system's own (``status.detail``)."""
+    was, by the truth, in the scenario frame; which clock ran out), then the system's own
+    (``status.detail``), joined by "; ", at most 300 characters."""
     x, y = float(true_pose[0]), float(true_pose[1])
     runner = {
         "reached": f"declared reached {final:.2f} m from the goal",
-        "collision": f"collided at ({x:.2f}, {y:.2f}), {final:.1f} m from the goal",
-        "stuck": f"moved less than {STUCK_DISTANCE_M:g} m in {STUCK_WINDOW_S:g} s, at ({x:.2f}, {y:.2f}), "
+        "collision": f"collided at ({x:.2f}, {y:.2f}) in the scenario frame, {final:.1f} m from the goal",
+        "stuck": f"moved less than {STUCK_DISTANCE_M:g} m in {STUCK_WINDOW_S:g} s, at ({x:.2f}, {y:.2f}) in the scenario frame, "
         f"{final:.1f} m from the goal",
         "timeout": f"passed its simulated-time limit of {limit:.0f} s, {final:.1f} m from the goal",
     }.get(ending)

@@ -90,7 +90,7 @@ class GridPlanner:
         levels = ", ".join(f"{kind} {radius:.2f} m" for kind, radius in self.attempts)
         blocked = f"; {len(obstacles)} remembered obstacle points blocked" if len(obstacles) else ""
         return (
-            f"no path from ({start[0]:.2f}, {start[1]:.2f}) to ({goal[0]:.2f}, {goal[1]:.2f}) on the map, "
+            f"no path from ({start[0]:.2f}, {start[1]:.2f}) to ({goal[0]:.2f}, {goal[1]:.2f}) in the map frame, "
             f"{len(self.attempts)} levels tried (free space, clearance: {levels}): {why}{blocked}"
         )
 
