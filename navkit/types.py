@@ -1,6 +1,6 @@
 """Plain data passed between the runner and every navigation system.
 
-These live in ``navtopo`` (the bottom layer) so that systems can use them without importing
+These live in ``navkit`` (the bottom layer) so that systems can use them without importing
 the runner; ``runners.systems`` re-exports them with the ``NavigationSystem`` protocol.
 """
 

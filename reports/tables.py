@@ -42,7 +42,7 @@ class Row:
     trials: int = 0
     successes: int = 0
     failure_reasons: dict[str, int] = field(default_factory=dict)
-    failure_stages: dict[str, dict[str, int]] = field(default_factory=dict)  # {reason: {stage: count}}
+    failure_stages_by_reason: dict[str, dict[str, int]] = field(default_factory=dict)  # {reason: {stage: count}}
     success_rate: float | None = None
     success_rate_ci: Interval = None
     efficiency: float | None = None
@@ -147,7 +147,7 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
         trials=len(records),
         successes=len(successes),
         failure_reasons=dict(sorted(failures.items(), key=lambda kv: (-kv[1], kv[0]))),
-        failure_stages={reason: _by_count(counts) for reason, counts in stages.items()},
+        failure_stages_by_reason={reason: _by_count(counts) for reason, counts in stages.items()},
         success_rate=len(successes) / len(records) if records else None,
         success_rate_ci=bootstrap([1.0 if r.success else 0.0 for r in records]),
         efficiency=float(np.mean(efficiencies)) if efficiencies else None,
@@ -207,7 +207,7 @@ def failures_text(row: Row) -> str:
     stages its trials failed in (where the records name them)."""
     parts = []
     for reason, count in row.failure_reasons.items():
-        stages = row.failure_stages.get(reason)
+        stages = row.failure_stages_by_reason.get(reason)
         where = f" ({', '.join(f'{stage} {n}' for stage, n in stages.items())})" if stages else ""
         parts.append(f"{reason} {count}{where}")
     return ", ".join(parts) or "none"
@@ -216,7 +216,7 @@ def failures_text(row: Row) -> str:
 def stage_totals(row: Row) -> dict[str, int]:
     """Failures by stage over every reason, most first."""
     totals: dict[str, int] = {}
-    for stages in row.failure_stages.values():
+    for stages in row.failure_stages_by_reason.values():
         for stage, count in stages.items():
             totals[stage] = totals.get(stage, 0) + count
     return _by_count(totals)
