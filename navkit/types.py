@@ -1,6 +1,6 @@
 """Plain data passed between the runner and every navigation system.
 
-These live in ``navtopo`` (the bottom layer) so that systems can use them without importing
+These live in ``navkit`` (the bottom layer) so that systems can use them without importing
 the runner; ``runners.systems`` re-exports them with the ``NavigationSystem`` protocol.
 """
 
@@ -42,10 +42,48 @@ class Status(StrEnum):
     FAILED = "failed"
 
 
+class FailureStage(StrEnum):
+    """Where a navigation trial failed: the ``failure_stage`` of its record (docs/DESIGN.md, "Trial end").
+
+    STARTUP:      the start-up localization (NavTopo's hypotheses never committed; the baseline's
+                  initial registration or relocalization found no pose on the map), or any ending
+                  while the system had not localized yet;
+    LOCALIZATION: lost while navigating (tracking fits rejected, odometry only for too long), or
+                  ``reached`` declared away from the goal (the system believed it was there);
+    GLOBAL_PLAN:  no route to the goal on the whole map (NavTopo's Dijkstra over the graph with no
+                  edge removed, the baseline's and the oracle's grid search);
+    LOCAL_PLAN:   NavTopo's local planner in the union grid: no local path to the goal in its
+                  location, or edges removed (no local path across them) until no route was left;
+    FOLLOWER:     following a path: collision, stuck, the simulated-time limit;
+    RUNNER:       the trial's process: an exception, a crash, the wall-clock limit, out of memory.
+    """
+
+    STARTUP = "startup"
+    LOCALIZATION = "localization"
+    GLOBAL_PLAN = "global_plan"
+    LOCAL_PLAN = "local_plan"
+    FOLLOWER = "follower"
+    RUNNER = "runner"
+
+
 @dataclass
 class NavStatus:
+    """What a system says of its trial, read by the runner after every ``step``.
+
+    state, reason: active, reached, or failed with a reason (``no_path``, ``not_localized``, ...).
+    stage: once failed, the stage it failed in (``FailureStage``); while active, the stage it is in
+           when that is not following its path (``STARTUP`` until it has localized,
+           ``LOCALIZATION`` while it has lost its pose), else None. The runner gives an ending it
+           decides itself (collision, stuck, the time limit) to that stage, else to ``FOLLOWER``.
+    detail: one line in the system's words: where it failed (which location or edge, plan from
+            and to, how far from the goal); while active, what it is doing (kept current at its
+            plans and looks, so that an ending the runner decides says it too). None: nothing to say.
+    """
+
     state: Status = Status.ACTIVE
     reason: str = ""
+    stage: FailureStage | None = None
+    detail: str | None = None
 
 
 @dataclass

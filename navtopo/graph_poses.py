@@ -136,6 +136,8 @@ def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.f
     n = len(graph)
     if n == 0:
         return np.zeros((0, 3))
+    if n == 1:  # nothing to relax (the constraints below would be none): the first vertex anchors the frame
+        return np.asarray(hint_chain(graph)[1], dtype=np.float64).copy()
     travel = _travel(graph, np.array([v.pose_hint for v in graph.vertices], dtype=np.float64))
     _, hints = hint_chain(graph)
     k_xy, k_yaw = _hint_noise(graph, travel, hints)

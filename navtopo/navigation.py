@@ -18,6 +18,15 @@ Failure handling: a local plan that finds no way to the next vertex (a closed do
 the map lacks) removes that edge for the rest of the trial and plans again over the graph; no path
 over the graph fails with ``no_path``; no progress for ``stuck_time`` seconds removes the edge
 being followed, and a second time fails with ``stuck``.
+
+Where it fails (``status.stage``, docs/DESIGN.md "Trial end"): ``startup`` (``not_localized``, or
+any ending before the commitment); ``global_plan`` (no route over the graph, no edge removed: the
+graph does not join the robot's location and the goal's); ``local_plan`` (no local path to the
+goal in its location, or edges removed for want of a local path until no route was left);
+``follower`` (``stuck``, or no route left once edges were removed for being stuck on them);
+``localization`` while odometry alone has kept the pose for ``LOST_AFTER_M`` (no location verified).
+The detail names the locations (their index in the graph), the edges removed and how far the goal
+is (straight, by the locations' map-frame poses).
 """
 
 from __future__ import annotations
@@ -30,11 +39,11 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.follower import PathFollower
-from navkit.geometry import between, inverse, transform_points
+from navkit.geometry import between, compose, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
-from navkit.types import Command, NavStatus, Observation, Status
+from navkit.types import Command, FailureStage, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.local_grid import GridConfig, grid_frame, grid_from_points
@@ -42,6 +51,10 @@ from navtopo.mapping import GraphMaintainer
 from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
 from navtopo.scan_matching import prepare
 from navtopo.startup import Explorer, Hypothesis, Localization, Startup
+
+#: metres of odometry alone (every update "lost": outside every location's reach, none verified)
+#: after which the navigator says it is lost (stage ``localization``); a diagnosis, no behaviour
+LOST_AFTER_M = 2.0
 
 
 class NavigationConfig(BaseModel):
@@ -64,14 +77,11 @@ def goal_in_graph(
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
     if poses is None:
         poses = np.array([vertex.pose_hint for vertex in graph.vertices])
-    frame = grid_frame(grid_config)
     best, best_free = None, None
-    for v, vertex in enumerate(graph.vertices):
+    for v in range(len(graph.vertices)):
         local = transform_points(inverse(poses[v]), goal_xy[None])[0]
         distance = float(np.hypot(local[0], local[1]))
-        row, col = frame.to_cell(local[None])[0] - (vertex.grid.row0, vertex.grid.col0)
-        cells = vertex.grid.cells
-        free = 0 <= row < cells.shape[0] and 0 <= col < cells.shape[1] and cells[row, col] == FREE
+        free = goal_held(graph, v, local, grid_config)
         if best is None or distance < best[0]:
             best = (distance, v, local)
         if free and (best_free is None or distance < best_free[0]):
@@ -81,10 +91,19 @@ def goal_in_graph(
     return chosen[1], chosen[2]
 
 
+def goal_held(graph: TopologicalGraph, vertex: int, pose: NDArray, grid_config: GridConfig) -> bool:
+    """Does the goal ``pose`` (2,) in ``vertex``'s frame lie in that location's known free space?"""
+    row, col = grid_frame(grid_config).to_cell(np.asarray(pose, dtype=np.float64)[None, :2])[0]
+    grid = graph.vertices[vertex].grid
+    row, col = row - grid.row0, col - grid.col0
+    return bool(0 <= row < grid.cells.shape[0] and 0 <= col < grid.cells.shape[1] and grid.cells[row, col] == FREE)
+
+
 @dataclass
 class Goal:
     vertex: int
     pose: NDArray[np.float64]  # (2,) the goal in v_goal's frame
+    held: bool = True  # it lies in v_goal's known free space (else: the nearest location, none holds it)
 
 
 @dataclass
@@ -119,6 +138,10 @@ class Navigator:
     _progress: tuple[float, NDArray[np.float64]] | None = None
     _stuck_once: bool = False
     _tentative: Hypothesis | None = None  # the start-up hypothesis the robot drives by
+    _odometer: float = 0.0  # metres of odometry this trial
+    _last_odom: NDArray[np.float64] | None = None
+    _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
+    _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -156,6 +179,8 @@ class Navigator:
         self._stuck_once = False
         self.explorer.reset()
         self._tentative = None
+        self._odometer, self._last_odom, self._lost_since = 0.0, None, None
+        self._removed = {}
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -170,7 +195,8 @@ class Navigator:
 
     def set_goal_in_graph(self, vertex: int, pose: NDArray) -> None:
         """The paper's goal form: ``(v_goal, T_goal)``, T_goal the goal's position in v_goal's frame."""
-        self.goal = Goal(int(vertex), np.asarray(pose, dtype=np.float64)[:2].copy())
+        pose = np.asarray(pose, dtype=np.float64)[:2].copy()
+        self.goal = Goal(int(vertex), pose, goal_held(self.graph, int(vertex), pose, self.maintainer.grid_config))
         self.status = NavStatus()
 
     # -- stepping -------------------------------------------------------------------------------------
@@ -180,6 +206,7 @@ class Navigator:
             raise RuntimeError("step() before set_goal()")
         if self.status.state != Status.ACTIVE:
             return Command()
+        self._count_odometry(obs.odom)
         if not self.localized:
             return self._step_unlocalized(obs)
         before = self.maintainer.current
@@ -188,18 +215,23 @@ class Navigator:
             self._path_vertex = None  # a new frame: plan again
         current = self.maintainer.current
         assert current is not None, "a localized robot is in a location"
+        self._track_lost(event, current)
         return self._drive(obs, current, self.maintainer.pose_in_current)
 
     def _step_unlocalized(self, obs: Observation) -> Command:
         startup, explorer = self.startup, self.explorer
         explorer.record(obs.odom)
         driven = self._tentative if self._tentative in startup.hypotheses else None
+        looks = startup.looks
         committed = startup.step(obs, driven, self._route if driven is not None else None, force=self._at_path_end())
         if committed is not None:
             return self._commit(obs, committed)
         if startup.timed_out(obs.stamp):
-            self.status = NavStatus(Status.FAILED, "not_localized")
+            detail = f"no commitment in {startup.config.timeout:g} s: {self._startup_state()}"
+            self.status = NavStatus(Status.FAILED, "not_localized", FailureStage.STARTUP, detail)
             return Command()
+        if startup.looks != looks or self.status.stage != FailureStage.STARTUP:
+            self.status = NavStatus(stage=FailureStage.STARTUP, detail=f"start-up, not localized yet: {self._startup_state()}")
         best = startup.best()
         odometer = startup.odometer
         if explorer.under_way(odometer):
@@ -233,6 +265,7 @@ class Navigator:
             )
         )
         self._path_vertex = None
+        self.status = NavStatus(detail=f"localized in location {committed.vertex} after {startup.looks} looks")
         return self._drive(obs, committed.vertex, committed.pose)
 
     # -- planning and following ----------------------------------------------------------------------------
@@ -242,16 +275,16 @@ class Navigator:
         goal_here = self._goal_in(vertex)
         if goal_here is not None and np.hypot(*(pose[:2] - goal_here)) <= self.follower.config.goal_tolerance and not tentative:
             if vertex == self.goal.vertex:
-                self.status = NavStatus(Status.REACHED)
+                self.status = NavStatus(Status.REACHED, detail=self._reached_detail("in"))
                 return Command()
             # near the goal through the graph but not yet in v_goal: ask the maintainer to check v_goal
             if self._try_goal_vertex(obs, vertex, pose):
-                self.status = NavStatus(Status.REACHED)
+                self.status = NavStatus(Status.REACHED, detail=self._reached_detail(f"in location {vertex}, next to"))
                 return Command()
         if self._goal_short and self.follower.has_path and self.follower.reached and vertex == self.goal.vertex and not tentative:
             # a goal the robot does not fit at (estimated into a wall): as near as the free space allows
             self.counters["reached_short"] += 1
-            self.status = NavStatus(Status.REACHED)
+            self.status = NavStatus(Status.REACHED, detail=self._reached_detail("short of the goal (no room at it) in"))
             return Command()
         self._remember_obstacles(obs, vertex, pose)
         if tentative:
@@ -323,7 +356,7 @@ class Navigator:
             if route is None:
                 self._timed(t0)
                 if not tentative:
-                    self.status = NavStatus(Status.FAILED, "no_path")
+                    self.status = NavStatus(Status.FAILED, "no_path", *self._no_route(vertex, pose))
                 return False
             positions = path_positions(self.graph, route)
             goal_point = transform_points(positions[-1], self.goal.pose[None])
@@ -341,11 +374,14 @@ class Navigator:
             self.counters["plans_failed"] += 1
             self.counters["edges_removed"] += 1
             self.global_planner.remove_edge(route[0], route[1])
+            self._removed[(route[0], route[1])] = "no local path"
         self._timed(t0)
         if planned is None:
             self.counters["plans_failed"] += 1
             if not tentative:
-                self.status = NavStatus(Status.FAILED, "no_path")
+                # in v_goal (a route of one vertex): no local path to the goal itself
+                detail = f"no local path to the goal in its location {vertex} (union grid){self._far(vertex, pose)}"
+                self.status = NavStatus(Status.FAILED, "no_path", FailureStage.LOCAL_PLAN, detail)
             return False
         self._route = route
         self._path_vertex = vertex
@@ -353,6 +389,8 @@ class Navigator:
         self._target_is_goal = bool(np.allclose(target, goal_point[0]))
         self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
+        if not tentative:
+            self._describe(self._following(route))
         return True
 
     def _timed(self, t0: float) -> None:
@@ -394,10 +432,99 @@ class Navigator:
             return False
         self._progress = (obs.stamp, odom.copy())
         if self._stuck_once or not self._route or len(self._route) < 2:
-            self.status = NavStatus(Status.FAILED, "stuck")
+            route = self._route or []
+            where = f"location {route[0]} toward location {route[1]}" if len(route) > 1 else "the goal's location"
+            twice = "twice" if self._stuck_once else "once, with no edge to remove"
+            detail = f"no 0.1 m of progress for {self.config.stuck_time:g} s {twice}, in {where}"
+            current = self.maintainer.current
+            detail += "" if current is None else self._far(current, pose)
+            self.status = NavStatus(Status.FAILED, "stuck", FailureStage.FOLLOWER, detail)
             return True
         self._stuck_once = True
         self.counters["edges_removed"] += 1
         self.global_planner.remove_edge(self._route[0], self._route[1])
+        self._removed[(self._route[0], self._route[1])] = "stuck"
         self._path_vertex = None
         return False
+
+    # -- what the status says (docs/DESIGN.md, "Trial end") ----------------------------------------------
+
+    def _count_odometry(self, odom: NDArray) -> None:
+        odom = np.asarray(odom, dtype=np.float64)
+        if self._last_odom is not None:
+            self._odometer += float(np.hypot(*(odom[:2] - self._last_odom[:2])))
+        self._last_odom = odom.copy()
+
+    def _track_lost(self, event: str, vertex: int) -> None:
+        """Lost: every update for ``LOST_AFTER_M`` of odometry kept the pose by odometry alone."""
+        if event == "odometry":
+            return
+        if event != "lost":
+            if self._lost_since is not None:
+                self._lost_since = None
+                if self.status.stage == FailureStage.LOCALIZATION:
+                    self._describe(f"found again in location {vertex}")
+            return
+        if self._lost_since is None:
+            self._lost_since = self._odometer
+        alone = self._odometer - self._lost_since
+        if self.status.stage != FailureStage.LOCALIZATION and alone >= LOST_AFTER_M:
+            self._describe(f"lost in location {vertex}: odometry only for {alone:.1f} m, no location verified")
+
+    def _describe(self, doing: str) -> None:
+        """The active status: the stage the robot is in (start-up, lost, or None) and what it is doing."""
+        if not self.localized:
+            stage: FailureStage | None = FailureStage.STARTUP
+        elif self._lost_since is not None and self._odometer - self._lost_since >= LOST_AFTER_M:
+            stage = FailureStage.LOCALIZATION
+        else:
+            stage = None
+        self.status = NavStatus(stage=stage, detail=doing)
+
+    def _startup_state(self) -> str:
+        startup = self.startup
+        alive = len(startup.hypotheses)
+        state = f"{alive} hypotheses alive ({startup.seen} found), {startup.looks} looks, {startup.odometer:.1f} m driven"
+        best = startup.best()
+        if best is not None:
+            state += f"; best: location {best.vertex}, verified at {best.support} looks in {len(best.places)} locations"
+        return state
+
+    def _following(self, route: list[int]) -> str:
+        assert self.goal is not None
+        if self.status.stage == FailureStage.LOCALIZATION:
+            return self.status.detail or ""  # lost: that is the news, until found again
+        where = f"location {route[0]} toward location {route[1]}" if len(route) > 1 else f"the goal's location {route[0]}"
+        return f"following a local path in {where} (goal location {self.goal.vertex}, {len(route) - 1} edges away)"
+
+    def _far(self, vertex: int, pose: NDArray) -> str:
+        """How far the goal is (", 12.3 m from the goal": straight, by the locations' map-frame poses;
+        nothing without them), and whether it lies in no location's known free space."""
+        assert self.goal is not None
+        text = ""
+        poses = self.map_poses
+        if poses is not None and len(poses) == len(self.graph):
+            robot = compose(poses[vertex], np.asarray(pose, dtype=np.float64))
+            goal = transform_points(poses[self.goal.vertex], self.goal.pose[None])[0]
+            text = f", {float(np.hypot(*(robot[:2] - goal))):.1f} m from the goal"
+        if not self.goal.held:
+            text += f" (the goal lies in no location's known free space: given to the nearest, {self.goal.vertex})"
+        return text
+
+    def _no_route(self, vertex: int, pose: NDArray) -> tuple[FailureStage, str]:
+        """The stage and detail of a graph with no route left from ``vertex`` to the goal's location."""
+        assert self.goal is not None
+        far = self._far(vertex, pose)
+        if not self._removed:
+            detail = f"no route over the graph from location {vertex} to the goal's location {self.goal.vertex}: not joined{far}"
+            return FailureStage.GLOBAL_PLAN, detail
+        removed = [f"{u}-{v} ({why})" for (u, v), why in self._removed.items()]
+        listed = ", ".join(removed[:4]) + (f" and {len(removed) - 4} more" if len(removed) > 4 else "")
+        detail = f"no route left from location {vertex} to the goal's location {self.goal.vertex}, edges removed {listed}{far}"
+        local = any(why == "no local path" for why in self._removed.values())
+        return (FailureStage.LOCAL_PLAN if local else FailureStage.FOLLOWER), detail
+
+    def _reached_detail(self, where: str) -> str:
+        assert self.goal is not None
+        held = "" if self.goal.held else " (the goal lies in no location's known free space)"
+        return f"by its pose {where} the goal's location {self.goal.vertex}{held}"

@@ -258,7 +258,8 @@ class TrialRecord(Record):
     trial: int
     success: bool
     reason: str = ""
-    detail: str | None = None  # one line behind reason error / crashed / timeout / out_of_memory
+    detail: str | None = None  # one line behind the reason: the runner's (error, crashed, timeout, ...) or the system's
+    failure_stage: str | None = None  # where it failed (navkit.types.FailureStage); None: a success, or a run before it
     start: list[Number] | None = None  # [x, y, yaw_deg], scenario frame
     goal: list[Number] | None = None
     shortest_m: Number | None = None
@@ -345,3 +346,4 @@ class SystemSummary(Record):
     goal_conversion_error_m: dict[str, Number | None] | None = None
     mapping_ms_per_scan: Stats | None = None
     failure_reasons: dict[str, int] = Field(default_factory=dict)
+    failure_stages: dict[str, int] = Field(default_factory=dict)  # failures by stage (records that name one)

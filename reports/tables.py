@@ -10,7 +10,9 @@ Definitions (docs/DESIGN.md, "Measurement definitions"): memory = the breakdown'
 localization + derived + model, exact bytes) and its parts, the saved map on disk, the worker's
 RSS growth from before loading the map to after the first plan, and its whole RSS then; planning
 time = the first start-to-goal plan of each trial and every planning call (median, p95);
-efficiency = shortest / travelled over successful trials, SPL over all trials.
+efficiency = shortest / travelled over successful trials, SPL over all trials. Failures are
+counted by reason and, within each, by the stage the trial failed in (``failure_stage``:
+``no_path 3 (local_plan 2, global_plan 1)``; a run recorded before stages were shows reasons alone).
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ class Row:
     trials: int = 0
     successes: int = 0
     failure_reasons: dict[str, int] = field(default_factory=dict)
+    failure_stages_by_reason: dict[str, dict[str, int]] = field(default_factory=dict)  # {reason: {stage: count}}
     success_rate: float | None = None
     success_rate_ci: Interval = None
     efficiency: float | None = None
@@ -118,9 +121,13 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
     records = [r for run in runs for r in run.trials_of(system)]
     successes = [r for r in records if r.success]
     failures: dict[str, int] = {}
+    stages: dict[str, dict[str, int]] = {}
     for r in records:
         if not r.success:
             failures[r.reason or "failed"] = failures.get(r.reason or "failed", 0) + 1
+            if r.failure_stage:
+                counts = stages.setdefault(r.reason or "failed", {})
+                counts[r.failure_stage] = counts.get(r.failure_stage, 0) + 1
     efficiencies = [r.efficiency for r in successes if r.efficiency is not None]
     first = [r.first_plan_ms for r in records if r.first_plan_ms is not None]
     per_trial_calls = [r.planning_ms_samples for r in records if r.planning_ms_samples]
@@ -140,6 +147,7 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
         trials=len(records),
         successes=len(successes),
         failure_reasons=dict(sorted(failures.items(), key=lambda kv: (-kv[1], kv[0]))),
+        failure_stages_by_reason={reason: _by_count(counts) for reason, counts in stages.items()},
         success_rate=len(successes) / len(records) if records else None,
         success_rate_ci=bootstrap([1.0 if r.success else 0.0 for r in records]),
         efficiency=float(np.mean(efficiencies)) if efficiencies else None,
@@ -162,6 +170,10 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
         mapping_ms_per_scan_p95=_median(scan_p95),
         note=("mapping failed: " + errors[0]) if errors else "",
     )
+
+
+def _by_count(counts: dict[str, int]) -> dict[str, int]:
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
 def table_rows(runs: list[Run], with_paper: bool = True) -> list[Row]:
@@ -191,7 +203,23 @@ def with_ci(text: str, ci: Interval, fmt) -> str:
 
 
 def failures_text(row: Row) -> str:
-    return ", ".join(f"{reason} {count}" for reason, count in row.failure_reasons.items()) or "none"
+    """``no_path 3 (local_plan 2, global_plan 1), collision 1 (follower 1)``: each reason, then the
+    stages its trials failed in (where the records name them)."""
+    parts = []
+    for reason, count in row.failure_reasons.items():
+        stages = row.failure_stages_by_reason.get(reason)
+        where = f" ({', '.join(f'{stage} {n}' for stage, n in stages.items())})" if stages else ""
+        parts.append(f"{reason} {count}{where}")
+    return ", ".join(parts) or "none"
+
+
+def stage_totals(row: Row) -> dict[str, int]:
+    """Failures by stage over every reason, most first."""
+    totals: dict[str, int] = {}
+    for stages in row.failure_stages_by_reason.values():
+        for stage, count in stages.items():
+            totals[stage] = totals.get(stage, 0) + count
+    return _by_count(totals)
 
 
 def cells(row: Row) -> dict[str, str]:
@@ -241,7 +269,7 @@ HEADERS = {
     "setting": "setting",
     "system": "system",
     "success": "success [95 % CI]",
-    "failures": "failures",
+    "failures": "failures (by stage)",
     "efficiency": "efficiency [95 % CI]",
     "spl": "SPL [95 % CI]",
     "first_plan": "first plan ms: median [95 % CI] / p95",
@@ -292,6 +320,7 @@ CSV_FIELDS = [
     "success_rate_ci_low",
     "success_rate_ci_high",
     "failure_reasons",
+    "failure_stages",
     "efficiency",
     "efficiency_ci_low",
     "efficiency_ci_high",
@@ -340,6 +369,7 @@ def csv_rows(rows: list[Row]) -> list[dict[str, str]]:
             "successes": row.successes if not row.paper else None,
             "success_rate": row.success_rate,
             "failure_reasons": ";".join(f"{k}:{v}" for k, v in row.failure_reasons.items()),
+            "failure_stages": ";".join(f"{k}:{v}" for k, v in stage_totals(row).items()),
             "efficiency": row.efficiency,
             "spl": row.spl,
             "first_plan_ms_median": row.first_plan_ms_median,

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from navkit import geometry as se2
-from navkit.types import MEMORY_PARTS
+from navkit.types import MEMORY_PARTS, FailureStage
 from reports.records import (
     DiskParts,
     EdgeError,
@@ -70,6 +70,49 @@ def judge(ending: str, final_distance_m: float, goal_tolerance: float = GOAL_TOL
     if ending == "failed":
         return False, failure or "failed"
     return False, ending
+
+
+#: the stage of a system's own failure that gives none (a system of another author), by its reason;
+#: and of the reasons the runner gives itself
+REASON_STAGES: dict[str, FailureStage] = {
+    "not_localized": FailureStage.STARTUP,
+    "no_path": FailureStage.GLOBAL_PLAN,
+    "stuck": FailureStage.FOLLOWER,
+    "collision": FailureStage.FOLLOWER,
+    "timeout": FailureStage.FOLLOWER,
+    "reached_wrong_place": FailureStage.LOCALIZATION,
+    "error": FailureStage.RUNNER,
+    "crashed": FailureStage.RUNNER,
+    "out_of_memory": FailureStage.RUNNER,
+}
+
+
+def failure_stage(ending: str, success: bool, reason: str, status_stage: str | None = None) -> str | None:
+    """The stage a trial that ended with ``ending`` failed in (``navkit.types.FailureStage``; None
+    for a success), the system's status saying ``status_stage`` at the end (docs/DESIGN.md, "Trial end").
+
+    * ``reached`` away from the goal: ``localization`` (the system believed it was at the goal);
+    * ``failed``: the stage the system gives, else the one its reason names (``REASON_STAGES``),
+      else None (a reason the runner does not know, from a system that gives no stage);
+    * collision, stuck, the simulated-time limit (the runner's endings): ``startup`` while the
+      system had not localized yet, ``localization`` while it said it was lost, else ``follower``.
+    """
+    if ending not in ENDINGS:
+        raise ValueError(f"unknown trial ending {ending!r}")
+    if success:
+        return None
+    if ending == "reached":
+        return FailureStage.LOCALIZATION.value
+    if ending == "failed":
+        return FailureStage(status_stage).value if status_stage else _reason_stage(reason)
+    if status_stage in (FailureStage.STARTUP, FailureStage.LOCALIZATION):
+        return FailureStage(status_stage).value
+    return FailureStage.FOLLOWER.value
+
+
+def _reason_stage(reason: str) -> str | None:
+    stage = REASON_STAGES.get(reason)
+    return None if stage is None else stage.value
 
 
 def trajectory_length(trajectory: NDArray) -> float:
@@ -148,6 +191,7 @@ def summarize(
             **_localization_summary(mine),
             mapping_ms_per_scan=report.ms_per_scan,
             failure_reasons=_count([r.reason for r in mine if not r.success]),
+            failure_stages=_count([r.failure_stage for r in mine if not r.success and r.failure_stage]),
         )
     return out
 
@@ -298,6 +342,7 @@ def trial_record(
     success: bool,
     reason: str,
     detail: str | None = None,
+    failure_stage: str | None = None,
     travelled_m: float = 0.0,
     final_distance_m: float | None = None,
     collisions: int = 0,
@@ -315,8 +360,10 @@ def trial_record(
     tracking_error_m: the distance between the system's own pose estimate and the truth at every
     tick (systems with a map-frame estimate only); initial_pose_error: the protocol's error
     [dx, dy, dyaw] added to the initial pose the system was given (None: it was given none);
-    detail: one line on a failure the reason names only (``error``, ``crashed``, ``timeout`` of
-    the wall clock, ``out_of_memory``): the exception, the signal, the limit; diagnostics: the
+    detail: one line on a failure: the exception, the signal, the limit (``error``, ``crashed``,
+    ``timeout``, ``out_of_memory``), or the system's own words on where it failed;
+    failure_stage: the stage it failed in (``failure_stage``; None for a success; not given: the one
+    its reason names, ``REASON_STAGES``); diagnostics: the
     keys a graph system's start-up localization and goal conversion add (``Anchors.judge``)."""
     eff = efficiency(trial.shortest_m, travelled_m) if success else None
     to_goal = None
@@ -330,6 +377,7 @@ def trial_record(
         success=bool(success),
         reason=reason,
         detail=detail,
+        failure_stage=None if success else (failure_stage or _reason_stage(reason)),
         start=[round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
         goal=[round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
         shortest_m=round(trial.shortest_m, 4),

@@ -4,11 +4,13 @@ Per trial: the robot is placed at the start (scenario frame); the system forgets
 trial (``reset``), gets the goal in the map frame (and, if its entry asks, the initial pose with
 the protocol's seeded error, ``runners.protocol``); the loop observes, asks the system for a
 command and moves the robot until the system declares reached or failed, the robot collides,
-gets stuck or times out. The worker times the map's loading (``map_load_ms``), measures RSS and
+gets stuck or times out; the record says where it failed (``failure_stage``: the system's status,
+or ``runners.metrics.failure_stage`` for the endings the runner decides) with a one-line ``detail``
+(the runner's words on its own endings, then the system's). The worker times the map's loading (``map_load_ms``), measures RSS and
 the system's memory breakdown right after its first plan, and the tracking error of the system's
 own pose estimate (where it has one) against the truth at every tick. An exception inside a
 trial is recorded (reason ``error``, or ``out_of_memory`` for a ``MemoryError`` under
-``--trial-memory-mb``) with a one-line ``detail``, and the next trial runs.
+``--trial-memory-mb``; stage ``runner``) with a one-line ``detail``, and the next trial runs.
 
 Each trial's record is a ``TrialRecord`` and the worker's figures a ``NavigationReport``
 (``reports.records``). A job (``TrialJob``) carries the scenario's files and the saved map as
@@ -37,10 +39,19 @@ from numpy.typing import NDArray
 
 from navkit import geometry as se2
 from navkit.errors import BenchError
-from navkit.types import Command
+from navkit.types import Command, FailureStage, NavStatus
 from reports.records import NavigationReport, TrialRecord
 from runners.anchors import Anchors
-from runners.metrics import STUCK_DISTANCE_M, STUCK_WINDOW_S, disk_report, judge, timeout_s, trajectory_length, trial_record
+from runners.metrics import (
+    STUCK_DISTANCE_M,
+    STUCK_WINDOW_S,
+    disk_report,
+    failure_stage,
+    judge,
+    timeout_s,
+    trajectory_length,
+    trial_record,
+)
 from runners.payload import ScenarioFiles, pack_dir, unpack_dir
 from runners.protocol import TrialProtocol, apply_setting, context_for
 from runners.results import MAP_FRAME_FILE, RunDir, write_map_frame, write_tum
@@ -259,6 +270,7 @@ class TrialOutcome:
     success: bool = False
     reason: str = ""
     detail: str | None = None
+    stage: str | None = None  # navkit.types.FailureStage of a failure
     compute_s: float = 0.0  # wall clock inside the system's calls
     initial_error: NDArray[np.float64] | None = None  # the protocol's error in the given initial pose
     stats: dict[str, Any] = field(default_factory=dict)  # the system's, at the trial's end
@@ -288,17 +300,20 @@ def run_one_trial(
     tracking = Tracking(scenario.route_start, anchors)
     try:
         start_trial(scenario, entry, system, trial, index, seed, protocol, anchors, outcome)
-        ending, failure = drive_trial(sim, system, limit, first, rss_before, tracking, outcome)
+        ending, status = drive_trial(sim, system, limit, first, rss_before, tracking, outcome)
         final = float(np.hypot(*(sim.true_pose[:2] - trial.goal)))
-        outcome.success, outcome.reason = judge(ending, final, protocol.goal_tolerance, failure)
+        outcome.success, outcome.reason = judge(ending, final, protocol.goal_tolerance, status.reason)
+        outcome.stage = failure_stage(ending, outcome.success, outcome.reason, status.stage)
+        outcome.detail = None if outcome.success else ending_detail(ending, status, sim.true_pose, limit, final)
         outcome.stats = system.stats()
         outcome.planning_ms = list(outcome.stats.get("planning_ms", []))
         outcome.first_plan_ms = outcome.stats.get("first_plan_ms", outcome.planning_ms[0] if outcome.planning_ms else None)
     except MemoryError:  # past --trial-memory-mb (RLIMIT_AS): recorded, and the run goes on
-        outcome.reason = "out_of_memory"
+        outcome.reason, outcome.stage = "out_of_memory", FailureStage.RUNNER.value
         outcome.detail = "MemoryError: the trial passed its address-space limit (--trial-memory-mb)"
     except Exception as exc:  # a trial that raises is recorded and the run goes on
         outcome.reason, outcome.detail = "error", f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+        outcome.stage = FailureStage.RUNNER.value
         traceback.print_exc()
     rows = sim.trajectory_array()
     memory = _memory(system)
@@ -311,6 +326,7 @@ def run_one_trial(
         success=outcome.success,
         reason=outcome.reason,
         detail=outcome.detail,
+        failure_stage=outcome.stage,
         travelled_m=trajectory_length(rows),
         final_distance_m=float(np.hypot(*(sim.true_pose[:2] - trial.goal))),
         collisions=sim.collisions,
@@ -365,10 +381,11 @@ def drive_trial(
     rss_before: int,
     tracking: Tracking,
     outcome: TrialOutcome,
-) -> tuple[str, str]:
+) -> tuple[str, NavStatus]:
     """Tick by tick until the trial ends: observe, the system's command, then the robot moved by it
     unless the system declared reached or failed or the time (``limit``, simulated s) is up.
-    Returns the ending (``metrics.ENDINGS``) and the system's own reason."""
+    Returns the ending (``metrics.ENDINGS``) and the system's status then (its reason, its stage,
+    its detail)."""
     watch = StuckWatch(sim)
     while True:
         obs = sim.observe()
@@ -380,11 +397,27 @@ def drive_trial(
         tracking.add(system, obs.stamp, sim.true_pose)
         status = system.status
         if status.state == Status.REACHED:
-            return "reached", status.reason
+            return "reached", status
         if status.state == Status.FAILED:
-            return "failed", status.reason
+            return "failed", status
         if sim.time >= limit:
-            return "timeout", status.reason
+            return "timeout", status
         ending = watch.move(command)
         if ending:
-            return ending, status.reason
+            return ending, status
+
+
+def ending_detail(ending: str, status: NavStatus, true_pose: NDArray[np.float64], limit: float, final: float) -> str | None:
+    """The one line of a failed trial: the runner's words on an ending it decided (where the robot
+    was, by the truth, in the scenario frame; which clock ran out), then the system's own
+    (``status.detail``), joined by "; ", at most 300 characters."""
+    x, y = float(true_pose[0]), float(true_pose[1])
+    runner = {
+        "reached": f"declared reached {final:.2f} m from the goal",
+        "collision": f"collided at ({x:.2f}, {y:.2f}) in the scenario frame, {final:.1f} m from the goal",
+        "stuck": f"moved less than {STUCK_DISTANCE_M:g} m in {STUCK_WINDOW_S:g} s, at ({x:.2f}, {y:.2f}) in the scenario frame, "
+        f"{final:.1f} m from the goal",
+        "timeout": f"passed its simulated-time limit of {limit:.0f} s, {final:.1f} m from the goal",
+    }.get(ending)
+    parts = [part for part in (runner, status.detail) if part]
+    return " ".join("; ".join(parts).split())[:300] if parts else None

@@ -25,6 +25,7 @@ from typing import Any
 import psutil
 
 from navkit.errors import BenchError
+from navkit.types import FailureStage
 from reports.records import (
     Manifest,
     MappingReport,
@@ -450,14 +451,17 @@ class NavigationStage:
         else:
             self.run.append_trial(record)
         self.done.add((record.system, record.trial))
-        self.run.warnings += record.detail is not None
+        self.run.warnings += record.failure_stage == FailureStage.RUNNER  # failed in its worker: an error, a crash, a limit
         if self.on_trial:
             self.on_trial(record)
 
     def failed(self, system: str, index: int, reason: str, detail: str) -> TrialRecord:
         """The record of a trial its worker did not finish (the worker crashed, or ran out of time)."""
         trial = self.plan.scenario.trials[index]
-        return trial_record(system, index, trial, self.plan.seed, success=False, reason=reason, detail=detail[:300])
+        stage = FailureStage.RUNNER.value
+        return trial_record(
+            system, index, trial, self.plan.seed, success=False, reason=reason, detail=detail[:300], failure_stage=stage
+        )
 
     def on_message(self, number: int, job: TrialJob, message: dict[str, Any], worker: dict[str, Any] | None) -> None:
         if message["kind"] == "started":

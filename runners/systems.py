@@ -37,11 +37,12 @@ from navkit import grid_search
 from navkit.follower import FollowerConfig, PathFollower
 from navkit.grid_planning import plan_path
 from navkit.raster import GridFrame
-from navkit.types import Command, MemoryBreakdown, NavStatus, Observation, Status
+from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
 from scenarios.schema import RobotSpec, SensorSpec
 
 __all__ = [
     "Command",
+    "FailureStage",
     "GroundTruth",
     "MemoryBreakdown",
     "NavStatus",
@@ -287,9 +288,13 @@ class Oracle:
             path = self._plan(pose[:2])
             self.planning_ms.append((time.perf_counter() - t0) * 1e3)
             if path is None:
-                self.status = NavStatus(Status.FAILED, "no_path")
+                assert self.goal_world is not None
+                where = f"from ({pose[0]:.2f}, {pose[1]:.2f}) to ({self.goal_world[0]:.2f}, {self.goal_world[1]:.2f})"
+                detail = f"no path on the ground-truth raster {where} at either clearance"
+                self.status = NavStatus(Status.FAILED, "no_path", FailureStage.GLOBAL_PLAN, detail)
                 return Command()
             self.follower.set_path(path)
+            self.status = NavStatus(detail=f"following a {_length(path):.1f} m path on the ground-truth raster")
         command = self.follower.command(pose)
         if self.follower.reached:
             self.status = NavStatus(Status.REACHED)
@@ -307,3 +312,7 @@ class Oracle:
 
     def pose_estimate(self) -> NDArray[np.float64] | None:
         return None
+
+
+def _length(path: NDArray[np.float64]) -> float:
+    return float(np.hypot(*np.diff(path, axis=0).T).sum()) if len(path) > 1 else 0.0

@@ -66,13 +66,23 @@ def _success() -> TrialRecord:
     return record
 
 
+def _without(text: str, key: str) -> str:
+    """A JSON object's text (one object, or one per line) without ``key`` at its top level."""
+    return "\n".join(json.dumps({k: v for k, v in json.loads(line).items() if k != key}) for line in text.splitlines())
+
+
 def test_a_trial_record_is_written_as_before(tmp_path):
+    """The same text, but for the key added since (``failure_stage``, right after ``detail``)."""
     failure = trial_record("metric_grid", 0, TRIAL, 7, success=False, reason="crashed", detail="worker process killed by SIGABRT")
     failure.worker = None
     run = RunDir(tmp_path)
     run.append_trial(_success())
     run.append_trial(failure)
-    assert run.trials_path.read_text() == SUCCESS_LINE + "\n" + FAILURE_LINE + "\n"
+    written = run.trials_path.read_text()
+    assert _without(written, "failure_stage") == SUCCESS_LINE + "\n" + FAILURE_LINE
+    success, crashed = (json.loads(line) for line in written.splitlines())
+    assert (success["failure_stage"], crashed["failure_stage"]) == (None, "runner")  # a crash: the runner's stage
+    assert list(crashed)[list(crashed).index("detail") + 1] == "failure_stage"
 
 
 def test_a_trial_record_read_and_written_back_is_the_same_line(tmp_path):
@@ -89,6 +99,7 @@ def test_the_summary_is_written_as_before(tmp_path):
     ok = _success()
     not_localized = TrialRecord.model_validate(
         {**ok.as_json(), "trial": 4, "success": False, "reason": "not_localized", "efficiency": None, "spl": 0.0}
+        | {"failure_stage": "startup"}
         | {"startup_localization": None, "goal_conversion_error_m": None}
     )
     mapping = {
@@ -120,7 +131,12 @@ def test_the_summary_is_written_as_before(tmp_path):
     write_json(
         tmp_path / "summary.json", {name: summary.get(name, SystemSummary()) for name in ["navtopo", "metric_grid", "oracle"]}
     )
-    assert (tmp_path / "summary.json").read_text() == SUMMARY_TEXT
+    written = json.loads((tmp_path / "summary.json").read_text())
+    assert written["navtopo"]["failure_stages"] == {"startup": 1}  # added since, after failure_reasons
+    assert list(written["navtopo"])[-2:] == ["failure_reasons", "failure_stages"]
+    assert {name: {k: v for k, v in value.items() if k != "failure_stages"} for name, value in written.items()} == json.loads(
+        SUMMARY_TEXT
+    )
     read = {name: SystemSummary.model_validate(value) for name, value in json.loads(SUMMARY_TEXT).items()}
     write_json(tmp_path / "again.json", read)
     assert (tmp_path / "again.json").read_text() == SUMMARY_TEXT

@@ -102,8 +102,10 @@ def check_faulty_trials(tmp_path: Path, *flags: str) -> None:
     assert "MemoryError" in details[3]
     assert all("\n" not in d and len(d) <= 300 for d in details)
     assert records[("faulty", 4)]["detail"] is None
+    assert [records[("faulty", i)]["failure_stage"] for i in range(5)] == ["runner"] * 4 + [None]  # failed in the worker
     summary = json.loads((out / "summary.json").read_text())["faulty"]
     assert summary["failure_reasons"] == {"crashed": 1, "error": 1, "out_of_memory": 1, "timeout": 1}
+    assert summary["failure_stages"] == {"runner": 4}
     assert (out / "trajectories" / "faulty" / "trial-4.tum").is_file()
 
 

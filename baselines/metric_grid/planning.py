@@ -68,6 +68,32 @@ class GridPlanner:
 
         return plan_path(mask, frame, start_xy, goal_xy, snap, levels=len(self.attempts))
 
+    def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
+        """One line on a plan that found nothing: from and to (map frame), the levels tried, and on
+        the most lenient whether the start and the goal had a passable cell within the snap radius
+        (neither: both in walls or off the map; both: no way joins them, e.g. a sealed room)."""
+        grid = self.grid_map
+        kind, radius = self.attempts[-1]
+        free = self._base(kind)
+        if len(obstacles):
+            free = free & ~self._blocked_cells(grid.frame, obstacles)
+        lenient = grid_search.inflate_free(free, radius, grid.resolution)
+        snap = int(np.ceil(self.config.snap_radius / grid.resolution))
+        start, goal = np.asarray(start_xy, dtype=np.float64)[:2], np.asarray(goal_xy, dtype=np.float64)[:2]
+        start_ok = grid_search.nearest_free(lenient, grid.frame.to_cell(start), snap) is not None
+        goal_ok = grid_search.nearest_free(lenient, grid.frame.to_cell(goal), snap) is not None
+        if start_ok and goal_ok:
+            why = "no way joins the start and the goal"
+        else:
+            ends = " and ".join(name for name, ok in (("the start", start_ok), ("the goal", goal_ok)) if not ok)
+            why = f"{ends} had no passable cell within {self.config.snap_radius:g} m"
+        levels = ", ".join(f"{kind} {radius:.2f} m" for kind, radius in self.attempts)
+        blocked = f"; {len(obstacles)} remembered obstacle points blocked" if len(obstacles) else ""
+        return (
+            f"no path from ({start[0]:.2f}, {start[1]:.2f}) to ({goal[0]:.2f}, {goal[1]:.2f}) in the map frame, "
+            f"{len(self.attempts)} levels tried (free space, clearance: {levels}): {why}{blocked}"
+        )
+
     def _blocked_cells(self, frame: GridFrame, obstacles: NDArray) -> NDArray[np.bool_]:
         """(H, W) the map's cells that hold one of the points (N, 2); points off the map are dropped."""
         cells = frame.to_cell(obstacles)

@@ -24,6 +24,11 @@ navigation   as a Nav2 user runs it: the map is loaded and an initial pose given
 Each tick of ``step``: the scan's obstacle points (the shared band, voxel-filtered), the pose,
 the new obstacles, the replanning decision (due, or the path ahead blocked), the follower.
 
+Where it fails (``status.stage``, docs/DESIGN.md "Trial end"): ``startup`` until the pose is found
+on the map (``not_localized`` after the relocalization timeout), ``localization`` while the tracker
+is lost, ``global_plan`` when no level of the planner has a path (``no_path``; the detail names the
+ends, the levels and which end had no passable cell); the status's detail says what it is doing.
+
 Memory (``memory()``, the runner's breakdown): ``map`` is the trinary grid as loaded,
 ``localization`` the distance field of the scan-to-map fit and the relocalizer's score field,
 ``derived`` the eroded planning masks and the remembered obstacles; the mapping state (keyframe
@@ -43,7 +48,7 @@ from navkit import grid_search
 from navkit.follower import PathFollower
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.scan import obstacle_points
-from navkit.types import Command, MemoryBreakdown, NavStatus, Observation, Status
+from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
 
 from . import map_folder
 from .config import NOISY_ODOMETRY, PRECISE_ODOMETRY, SETTING_OVERRIDES, MetricGridConfig, for_context
@@ -235,9 +240,12 @@ class MetricGrid:
         pose = self.tracker.track(obs, points)
         if pose is None:  # no pose found on the map yet: turn in place to see more, for a while
             if self.tracker.search_timed_out(obs.stamp):
-                self.status = NavStatus(Status.FAILED, "not_localized")
+                detail = f"no fit on the map {self._searched()} in {self.config.relocalization.timeout:g} s"
+                self.status = NavStatus(Status.FAILED, "not_localized", FailureStage.STARTUP, detail)
                 return Command()
+            self._keep_stage()
             return Command(0.0, self.config.relocalization.turn_rate)
+        self._keep_stage()
         self.obstacles.update(pose, points, self.tracker.localizer)
         due = not self.follower.has_path or obs.stamp - self._last_plan_stamp >= self.config.planning.replan_period
         blocked = not due and self._path_blocked(pose)
@@ -247,14 +255,61 @@ class MetricGrid:
             path = self._timed_plan(pose[:2], self._goal)
             if path is not None:
                 self.follower.set_path(path)
+                self._describe(self._following(pose, path))
             elif not self.follower.has_path:
-                self.status = NavStatus(Status.FAILED, "no_path")
+                assert self.planner is not None
+                detail = self.planner.why_no_path(pose[:2], self._goal, self.obstacles.points)
+                self.status = NavStatus(Status.FAILED, "no_path", FailureStage.GLOBAL_PLAN, detail)
                 return Command()
         command = self.follower.command(pose)
         if self.follower.reached:
-            self.status = NavStatus(Status.REACHED)
+            off = float(np.hypot(*(pose[:2] - self._goal)))
+            detail = f"its pose estimate ({pose[0]:.2f}, {pose[1]:.2f}) {off:.2f} m from the goal, map frame"
+            self.status = NavStatus(Status.REACHED, detail=detail)
             return Command()
         return command
+
+    # -- what the status says (docs/DESIGN.md, "Trial end") ----------------------------------------------
+
+    def _stage(self) -> FailureStage | None:
+        """The stage it is in while active: startup until its pose is found, localization while lost."""
+        if not self.tracker.localized:
+            return FailureStage.STARTUP
+        return FailureStage.LOCALIZATION if self.tracker.lost else None
+
+    def _describe(self, doing: str) -> None:
+        """The active status: the stage it is in, and what it is doing (lost: since when)."""
+        stage = self._stage()
+        if stage == FailureStage.LOCALIZATION:
+            doing = f"lost ({self.tracker.rejected_in_row} fits rejected in a row, the window search found nothing); {doing}"
+        self.status = NavStatus(stage=stage, detail=doing)
+
+    def _keep_stage(self) -> None:
+        """Rewrite the active status when the stage it is in changes (not at every tick)."""
+        stage = self._stage()
+        if stage == self.status.stage and self.status.detail is not None:
+            return
+        if stage == FailureStage.STARTUP:
+            given = self.tracker.initial_pose
+            around = "" if given is None else f" around ({given[0]:.2f}, {given[1]:.2f}, {np.degrees(given[2]):.0f} deg)"
+            self._describe(f"searching for its pose on the map{around}, turning in place")
+        else:
+            self._describe("tracking its pose on the map")
+
+    def _searched(self) -> str:
+        """Where the pose has been searched for, and how often."""
+        given = self.tracker.initial_pose
+        around = "" if given is None else f"around ({given[0]:.2f}, {given[1]:.2f}, {np.degrees(given[2]):.0f} deg) "
+        counters = self.tracker.counters
+        return f"{around}({counters['relocalizations']} searches, {counters['global_searches']} over the whole map)"
+
+    def _following(self, pose: NDArray, path: NDArray[np.float64]) -> str:
+        assert self._goal is not None
+        length = float(np.hypot(*np.diff(path, axis=0).T).sum()) if len(path) > 1 else 0.0
+        return (
+            f"following a {length:.1f} m path from ({pose[0]:.2f}, {pose[1]:.2f}) to the goal "
+            f"({self._goal[0]:.2f}, {self._goal[1]:.2f}), map frame, after {self.plan_counters['plans']} plans"
+        )
 
     def _path_blocked(self, pose: NDArray) -> bool:
         """Do newly seen obstacles of the latest scan come within the robot radius of the path ahead?"""

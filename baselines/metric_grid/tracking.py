@@ -7,7 +7,8 @@ scan is searched for around the estimate, then over the whole map (``localizatio
 while none is found the caller turns in place, and gives up after the relocalization timeout. Once
 found, every ``every_scans``-th scan is registered to the map (``localization.ScanToMap``) and an
 accepted fit moves ``map_from_odom``; after ``lost_after`` rejected fits in a row, the window around
-the estimate is searched again.
+the estimate is searched again. The tracker is ``lost`` from a window search that finds nothing to
+the next accepted fit (the system's failure stage ``localization`` meanwhile).
 
 Poses are map-frame ``[x, y, yaw]`` float64; scans are (N, 2) obstacle points in the robot frame.
 """
@@ -68,6 +69,8 @@ class PoseTracker:
         self._localized = False
         self.localize_started: float | None = None
         self._rejections = 0
+        self.lost = False  # a window search after lost_after rejected fits found nothing; until a fit is accepted
+        self.rejected_in_row = 0  # rejected fits since the last accepted one
         self.counters = dict.fromkeys(self.counters, 0)
 
     def set_initial_pose(self, pose: ArrayLike) -> None:
@@ -79,6 +82,18 @@ class PoseTracker:
         self._odometry = None
         self._localized = False
         self.localize_started = None
+        self.lost = False
+        self.rejected_in_row = 0
+
+    @property
+    def localized(self) -> bool:
+        """Whether the pose has been found on the map since the initial pose was given."""
+        return self._localized
+
+    @property
+    def initial_pose(self) -> NDArray[np.float64] | None:
+        """The initial pose as given (map frame), None before one is."""
+        return None if self._initial_pose is None else self._initial_pose.copy()
 
     def search_timed_out(self, stamp: float) -> bool:
         """Whether the pose has been searched for longer than the relocalization timeout at ``stamp``."""
@@ -123,14 +138,19 @@ class PoseTracker:
         if fit is None:
             self.counters["fits_rejected"] += 1
             self._rejections += 1
+            self.rejected_in_row += 1
             if self._rejections >= self.relocalization.lost_after:  # lost: search the window again
                 found = self._relocalize(near, pose, everywhere=False)
                 self._rejections = 0
                 if found is not None:
                     fit = (found, 1.0)
+                else:
+                    self.lost = True
         if fit is not None:
             self.counters["fits"] += 1
             self._rejections = 0
+            self.rejected_in_row = 0
+            self.lost = False
             pose = fit[0]
             self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
         return pose

@@ -77,6 +77,8 @@ class RunProgress:
         if self.trial_task is not None:
             self.progress.advance(self.trial_task)
         mark = "[green]ok[/]" if record.success else f"[red]{record.reason}[/]"
+        if record.failure_stage:
+            mark += f", {escape(record.failure_stage)}"
         if record.detail:
             mark += f" ({escape(record.detail)})"
         eff = record.efficiency
