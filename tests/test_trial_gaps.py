@@ -268,3 +268,40 @@ def test_the_report_lists_each_trials_gap_and_marks_the_narrow_one(tmp_path):
     assert "| 3 | 5.00 | – | " in text  # a trial whose gap was never measured (a run from before)
     (note,) = gap_notes([run])
     assert "0.050 m" in note and "(trial 2)" in note and "margin: 0.1 m" in note and "narrow**: 2." in note
+
+
+# --- a robot's map: a map_server PGM with a door at the margin and one a pixel under ----------
+
+
+def door_map(tmp_path: Path, trials) -> Path:
+    """A 4 m x 6.2 m map at 0.05 m: two rooms parted by a 4-pixel wall with a door of 16 pixels
+    (0.8 m: exactly the margin for radius 0.3 m) at x 0.6-1.4 and one of 15 (0.75 m) at x 2.5-3.25."""
+    res, width, height = 0.05, 80, 124
+    x = (np.arange(width) + 0.5) * res
+    y = (np.arange(height) + 0.5) * res
+    free = ((x > 0.1) & (x < 3.9))[None, :] & (((y > 0.1) & (y < 3.0)) | ((y > 3.2) & (y < 6.1)))[:, None]
+    in_wall = ((y > 3.0) & (y < 3.2))[:, None]
+    free |= in_wall & (((x > 0.6) & (x < 1.4)) | ((x > 2.5) & (x < 3.25)))[None, :]
+    pixels = np.where(free, 254, 0).astype(np.uint8)[::-1]  # the image's first row is the top
+    (tmp_path / "doors.pgm").write_bytes(f"P5\n{width} {height}\n255\n".encode() + pixels.tobytes())
+    meta = {"image": "doors.pgm", "resolution": res, "origin": [0.0, 0.0, 0.0], "occupied_thresh": 0.65, "free_thresh": 0.196}
+    (tmp_path / "doors_map.yaml").write_text(yaml.safe_dump(meta))
+    spec = {
+        "format": "navtopo-scenario/1",
+        "name": "door_map",
+        "world": {"map": {"yaml": "doors_map.yaml"}},
+        "mapping_route": {"waypoints": [[1.0, 1.0], [1.0, 5.0], [3.0, 5.0]]},
+        "trials": trials,
+    }
+    path = tmp_path / "door_map.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    return path
+
+
+def test_on_a_robots_map_a_door_at_the_margin_is_kept_and_one_a_pixel_under_is_refused(tmp_path):
+    at_margin = {"start": [1.0, 2.0, 90.0], "goal": [1.0, 4.2]}
+    (trial,) = load_scenario(door_map(tmp_path, [at_margin])).trials
+    assert trial.narrowest_gap_m == pytest.approx(0.1, abs=1e-6) and not trial.narrow
+    under = {"start": [2.875, 2.0, 90.0], "goal": [2.875, 4.2]}
+    with pytest.raises(ScenarioError, match=r"trials\.1: its shortest path's narrowest gap 0\.075 m .* below the margin 0\.1 m"):
+        load_scenario(door_map(tmp_path, [at_margin, under]))
