@@ -31,8 +31,11 @@ within half a cell at other angles (measured on doors at 10-80°: -0.46 to +0.13
 the exact width). Only a cell that is a top across some line is lifted, so a bottleneck, which is
 a minimum along the path, is not lifted along the path.
 
-The search: label the cells of the tube (8-connected) at a threshold, and bisect the threshold
-over the values present until the largest at which the two ends' footprints are joined.
+The search, in a box round the path: the tube is the free cells within 1 m of the path's cells;
+label its cells valued at least a threshold (8-connected), and bisect the threshold over the values
+present to the largest at which the two ends' climbs are joined. Where: among the cells of that
+value joining them, the one nearest both ends' pieces at the next value (in a door, not the
+corners of its mouths, which hold the same value), then nearest the path.
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ import pytest
 import yaml
 from crafted_run import write_crafted_run
 
+from reports import trial_table
 from reports.records import TrialRecord
 from reports.results import Run
 from reports.trial_table import gap_notes, markdown, trial_lines
@@ -267,6 +268,7 @@ def test_the_report_lists_each_trials_gap_and_marks_the_narrow_one(tmp_path):
     assert "| 0 | " in text and "0.400" in text and "≥ 1" in text and "0.050 *narrow*" in text
     assert "| 3 | 5.00 | – | " in text  # a trial whose gap was never measured (a run from before)
     (note,) = gap_notes([run])
+    assert trial_table.GAP_CAP_M == GAP_CAP_M  # the reports' copy (they import nothing of scenarios)
     assert "0.050 m" in note and "(trial 2)" in note and "margin: 0.1 m" in note and "narrow**: 2." in note
 
 
