@@ -17,6 +17,8 @@ import yaml
 
 from reports.contents import Report, RunSection
 from reports.tables import HEADERS, NOTES, cells, paper_comparison, table_rows
+from reports.trial_table import GAP_NOTE, gap_notes
+from reports.trial_table import table_html as trial_table_html
 
 if TYPE_CHECKING:
     from reports.plots import PlotResult
@@ -32,6 +34,7 @@ table.results th, table.results td { border: 1px solid #ccc; padding: 0.25rem 0.
        vertical-align: top; }
 table.results th { background: #f0f0f0; } table.results td:nth-child(-n+3) { text-align: left; }
 table.results tr.paper td { font-style: italic; color: #555; background: #fafafa; }
+table.results tr.narrow td { background: #fff4e0; }
 dl.manifest { display: grid; grid-template-columns: max-content 1fr; gap: 0.15rem 1rem; font-size: 0.85rem; }
 dl.manifest dt { font-weight: 600; } dl.manifest dd { margin: 0; }
 pre { background: #f6f6f6; padding: 0.5rem; overflow-x: auto; font-size: 0.8rem; }
@@ -69,7 +72,8 @@ def table_html(report: Report) -> str:
         c = cells(row)
         tds = "".join(f"<td>{_e(c[key].strip('*'))}</td>" for key in HEADERS)
         body.append(f'<tr class="{"paper" if row.paper else "measured"}">{tds}</tr>')
-    notes = "".join(f"<li>{_inline(n)}</li>" for n in NOTES + paper_comparison(rows))
+    runs = [s.run for s in report.sections]
+    notes = "".join(f"<li>{_inline(n)}</li>" for n in NOTES + paper_comparison(rows) + gap_notes(runs))
     return (
         f'<table class="results" id="table1"><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table><ul>{notes}</ul>'
     )
@@ -165,6 +169,9 @@ def page(report: Report) -> str:
         base = f"plots/{section.key}/" if several else "plots/"
         parts.append(f"<h2>{_e(section.run.label)}</h2>")
         parts += [figure_html(p, base) for p in section.plots]
+        parts.append("<h3>Trials</h3>")
+        parts.append(trial_table_html(section.run))
+        parts.append(f'<p class="note">{_inline(GAP_NOTE)}</p>')
         parts.append("<h3>Manifest</h3>")
         parts.append(manifest_html(section))
     parts.append("</body></html>")

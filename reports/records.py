@@ -263,6 +263,8 @@ class TrialRecord(Record):
     start: list[Number] | None = None  # [x, y, yaw_deg], scenario frame
     goal: list[Number] | None = None
     shortest_m: Number | None = None
+    narrowest_gap_m: Number | None = None  # room beyond the radius on each side in the path's narrowest gap
+    narrow: bool = False  # narrower than the scenario's margin, run because the file allows it
     travelled_m: Number | None = None
     efficiency: Number | None = None
     spl: Number = 0.0

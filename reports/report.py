@@ -29,6 +29,7 @@ from reports.html import UNDECODED, shown, write_html
 from reports.plots import PlotResult, groups_of, plot_efficiency, plot_planning, run_plots
 from reports.results import Run, RunFormatError
 from reports.tables import write_tables
+from reports.trial_table import write_trial_table
 
 
 def run_key(run: Run) -> str:
@@ -111,7 +112,7 @@ def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | No
     runs, left_out = distinct_runs(run_dirs)
     out = Path(out) if out is not None else Path(run_dirs[0]) / "report"
     out.mkdir(parents=True, exist_ok=True)
-    files = write_tables(runs, out)
+    files = write_tables(runs, out) + write_trial_table(runs, out)
     plots_dir = out / "plots"
     several = len(runs) > 1
     keys: dict[str, int] = {}

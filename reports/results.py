@@ -71,6 +71,9 @@ class GroundTruthTrial(Record):
     goal: list[float]
     shortest_m: float
     shortest_path: list[list[float]]
+    narrowest_gap_m: float | None = None  # None: a run from before gaps were measured
+    narrowest_gap_at: list[float] | None = None  # [x, y] of the narrowest gap; None: wide open (or not measured)
+    narrow: bool = False
 
 
 class Route(Record):
@@ -87,6 +90,7 @@ class GroundTruth(BaseModel):
     raster: Raster
     image: NDArray[np.uint8] | None = None
     trials: dict[int, GroundTruthTrial] = Field(default_factory=dict)
+    trial_margin_m: float | None = None  # the margin the trials keep (trials.json ``margin_m``)
     route: Route | None = None
 
     @property
@@ -193,6 +197,7 @@ class Run:
         else:
             missing.append(f"ground_truth/{raster.image}")
         trials: dict[int, GroundTruthTrial] = {}
+        margin = None
         trials_path = folder / "trials.json"
         if trials_path.is_file():
             data = read_json(trials_path)
@@ -201,6 +206,9 @@ class Run:
             for entry in data.get("trials", []):
                 trial = validate(GroundTruthTrial, entry, trials_path)
                 trials[trial.trial] = trial
+            margin = data.get("margin_m")
+            if margin is not None and (isinstance(margin, bool) or not isinstance(margin, (int, float))):
+                raise RunFormatError(f"{trials_path}: margin_m: expected a number (got {margin!r})")
         else:
             missing.append("ground_truth/trials.json")
         route = None
@@ -209,7 +217,7 @@ class Run:
             route = validate(Route, read_json(route_path), route_path)
         else:
             missing.append("ground_truth/route.json")
-        return GroundTruth(raster=raster, image=image, trials=trials, route=route)
+        return GroundTruth(raster=raster, image=image, trials=trials, trial_margin_m=margin, route=route)
 
     # --- what the readers ask for ------------------------------------------------------------
 

@@ -244,7 +244,7 @@ def report(
         print_summary(section.run.root)
     for line in made.notes:
         console.print(f"note: {escape(line)}", highlight=False, soft_wrap=True)
-    console.print(f"tables: {made.out / 'table.md'}, table.csv, table.tex", highlight=False)
+    console.print(f"tables: {made.out / 'table.md'}, table.csv, table.tex, trials.md", highlight=False)
     console.print(f"report: [bold]{made.html}[/]", highlight=False)
 
 

@@ -9,8 +9,12 @@ draw against:
   cell), with the cell values named in ``values``: free in both stages, wall, obstacle, and
   ``change`` (free while mapping, blocked while navigating). ``map_frame`` is the pose
   ``[x, y, yaw]`` of the map frame (the mapping run's first pose) in the scenario frame.
-* ``trials.json``: each run trial's start ``[x, y, yaw_deg]``, goal, ``shortest_m`` and its GT
-  any-angle shortest path (a polyline in the scenario frame, navigation world).
+* ``trials.json``: each run trial's start ``[x, y, yaw_deg]``, goal, ``shortest_m``, its GT
+  any-angle shortest path (a polyline in the scenario frame, navigation world), its
+  ``narrowest_gap_m`` (the room the path leaves the robot beyond its radius on each side in its
+  narrowest passage, ``scenarios.gaps``; 1.0: 1 m or more), ``narrowest_gap_at`` ([x, y] of that
+  passage, null when wide open) and ``narrow`` (below the margin, run because the file allows
+  it); ``margin_m``: the margin the scenario's trials keep.
 * ``route.json``: the mapping route's polyline, its length and its start pose.
 
 Written at the start of a run (and on resume when missing); a folder that already holds them is
@@ -66,10 +70,12 @@ def trials_json(scenario: Scenario, trial_count: int | None) -> dict[str, Any]:
     return {
         "format": FORMAT,
         "frame": "scenario",
+        "margin_m": scenario.trial_margin_m,
         "trials": [
             {
                 **trial.to_json(),
                 "shortest_m": round(float(trial.shortest_m), 4),
+                "narrowest_gap_at": None if trial.gap_at is None else [round(float(v), 4) for v in trial.gap_at],
                 "shortest_path": [[round(float(x), 4), round(float(y), 4)] for x, y in trial.shortest_path],
             }
             for trial in trials

@@ -333,6 +333,12 @@ def unjoined_neighbours(
     return out
 
 
+def gap_keys(trial: Any) -> dict[str, Any]:
+    """``narrowest_gap_m`` and ``narrow`` of a trial whose gap was measured (``scenarios.gaps``), else none."""
+    gap = getattr(trial, "narrowest_gap_m", None)
+    return {} if gap is None else {"narrowest_gap_m": round(float(gap), 4), "narrow": bool(getattr(trial, "narrow", False))}
+
+
 def trial_record(
     system: str,
     index: int,
@@ -381,6 +387,7 @@ def trial_record(
         start=[round(float(trial.start[0]), 4), round(float(trial.start[1]), 4), round(float(np.degrees(trial.start[2])), 3)],
         goal=[round(float(trial.goal[0]), 4), round(float(trial.goal[1]), 4)],
         shortest_m=round(trial.shortest_m, 4),
+        **gap_keys(trial),
         travelled_m=round(travelled_m, 4),
         efficiency=round(eff, 6) if eff is not None else None,
         spl=round(eff, 6) if eff is not None else 0.0,

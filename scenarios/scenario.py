@@ -3,7 +3,7 @@ stage with ``world.changes`` in place), mapping route and trials."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -11,10 +11,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
+from scenarios.gaps import GapGauge
 from scenarios.route_space import RouteSpace, polyline_length, route_space, waypoint_route
 from scenarios.routes import auto_route
-from scenarios.schema import GOAL_TOLERANCE_M, ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
-from scenarios.trials import Trial, generate_trials, make_trial
+from scenarios.schema import GOAL_TOLERANCE_M, TRIAL_MARGIN_M, ScenarioError, ScenarioSpec, TrialsGenerate, read_spec
+from scenarios.trials import Trial, below_margin, generate_trials, make_trial
 from scenarios.world import World, build_world, corridor_polygon, rectangle, with_changes
 
 BUNDLED_DIR = Path(__file__).resolve().parent / "bundled"
@@ -60,6 +61,13 @@ class Scenario:
         return self.navigation_world.eroded(self.spec.robot.radius)
 
     @property
+    def trial_margin_m(self) -> float:
+        """The room (m) beyond the robot radius a trial's narrowest gap must leave on each side:
+        ``trials.generate.margin``, or ``TRIAL_MARGIN_M`` for listed trials."""
+        trials = self.spec.trials
+        return trials.generate.margin if isinstance(trials, TrialsGenerate) else TRIAL_MARGIN_M
+
+    @property
     def route_start(self) -> NDArray[np.float64]:
         """(3,) the pose the mapping run starts at: the first route point, facing along the route."""
         d = self.route[1] - self.route[0]
@@ -67,6 +75,7 @@ class Scenario:
 
     def summary(self) -> dict:
         distances = [t.shortest_m for t in self.trials]
+        gaps = [t.narrowest_gap_m for t in self.trials if t.narrowest_gap_m is not None]
         corridor_length = sum(
             float(np.linalg.norm(np.diff(np.asarray(c.points, float), axis=0), axis=1).sum()) for c in self.spec.world.corridors
         )
@@ -82,6 +91,9 @@ class Scenario:
             "trial_distance_mean_m": round(float(np.mean(distances)), 3) if distances else None,
             "trial_distance_min_m": round(float(np.min(distances)), 3) if distances else None,
             "trial_distance_max_m": round(float(np.max(distances)), 3) if distances else None,
+            "trial_margin_m": self.trial_margin_m,
+            "trial_narrowest_gap_m": round(float(np.min(gaps)), 3) if gaps else None,
+            "trials_narrow": sum(t.narrow for t in self.trials),
             "bounds_m": [round(v, 3) for v in (xmin, ymin, xmax, ymax)],
             "obstacles": len(self.spec.world.obstacles),
             "changes": len(self.spec.world.changes),
@@ -261,7 +273,15 @@ def _resolve_trials(scenario: Scenario, space: RouteSpace, rng: np.random.Genera
         fit_reachable = fit_labels == fit_labels[start_cell] if nav_space.fit[start_cell] else reachable
         try:
             scenario.trials = generate_trials(
-                nav, reachable, gen.count, gen.min_distance, trial_rng, gen.max_distance, within=fit_reachable
+                nav,
+                reachable,
+                gen.count,
+                gen.min_distance,
+                trial_rng,
+                gen.max_distance,
+                within=fit_reachable,
+                margin=gen.margin,
+                radius=spec.robot.radius,
             )
         except ValueError as exc:
             raise ScenarioError(path, "trials.generate", f"{exc}{where}") from None
@@ -270,11 +290,13 @@ def _resolve_trials(scenario: Scenario, space: RouteSpace, rng: np.random.Genera
 
 
 def _listed_trials(scenario: Scenario, nav_passable: NDArray[np.bool_], reachable: NDArray[np.bool_], where: str) -> list[Trial]:
-    """The trials the file lists, each end checked in the mapping and the navigation world."""
+    """The trials the file lists, each end checked in the mapping and the navigation world, and
+    its shortest path's narrowest gap against the margin (refused below it, unless ``allow_narrow``)."""
     spec, path, world, nav = scenario.spec, scenario.path, scenario.world, scenario.navigation_world
     assert not isinstance(spec.trials, TrialsGenerate)
     radius = spec.robot.radius
     passable = scenario.passable
+    gauge = GapGauge(nav, radius)
     trials = []
     for i, t in enumerate(spec.trials):
         apart = float(np.hypot(t.goal[0] - t.start[0], t.goal[1] - t.start[1]))
@@ -289,15 +311,30 @@ def _listed_trials(scenario: Scenario, nav_passable: NDArray[np.bool_], reachabl
             _check_point(path, f"trials.{i}.{end}", xy, world, passable, radius)
             if nav is not world:
                 _check_point(path, f"trials.{i}.{end}", xy, nav, nav_passable, radius, where)
-        trial = make_trial(nav, reachable, i, t.start, t.goal)
+        trial = make_trial(nav, reachable, i, t.start, t.goal, gauge)
         if trial is None:
             raise ScenarioError(
                 path,
                 f"trials.{i}",
                 "start and goal are not connected to the mapping route through free space wide enough for the robot" + where,
             )
+        if below_margin(trial, scenario.trial_margin_m):
+            if not t.allow_narrow:
+                raise ScenarioError(path, f"trials.{i}", narrow_reason(trial, scenario.trial_margin_m, radius) + where)
+            trial = replace(trial, narrow=True)
         trials.append(trial)
     return trials
+
+
+def narrow_reason(trial: Trial, margin: float, radius: float) -> str:
+    """Why a listed trial is refused: its narrowest gap, where, and the two ways out."""
+    gap = float(trial.narrowest_gap_m or 0.0)
+    at = f" at ({trial.gap_at[0]:.2f}, {trial.gap_at[1]:.2f})" if trial.gap_at is not None else ""
+    return (
+        f"its shortest path's narrowest gap {gap:.3f} m{at} (a passage {2 * (radius + gap):.2f} m wide) is below the "
+        f"margin {margin:g} m the robot (radius {radius:g} m) needs on each side; move the trial, or give it "
+        "'allow_narrow: true' to run it marked narrow"
+    )
 
 
 def load_scenario(name_or_path: str | Path, with_trials: bool = True) -> Scenario:

@@ -32,6 +32,12 @@ SUBSTEP_S = 0.05  # s, the simulator's collision-checked substep (runners/sim.py
 MAX_ROUTE_M = 100_000.0  # an auto route of 100 km takes a day to drive at 1 m/s
 MAX_SENSOR_RANGE_M = 500.0
 GOAL_TOLERANCE_M = 0.5  # the STOP rule's radius (runners.protocol): a trial's ends must lie farther apart
+# A trial's shortest path must leave the robot this much room beyond its radius on each side in its
+# narrowest gap (scenarios.gaps): one cell of the metric baseline's 0.1 m grid, so that a jamb its
+# grid draws a cell into a door still leaves the robot through. Gaps are measured up to GAP_CAP_M
+# (wider: wide open).
+TRIAL_MARGIN_M = 0.1
+GAP_CAP_M = 1.0
 
 
 class ScenarioError(FileProblem):
@@ -158,12 +164,18 @@ class RouteSpec(Strict):
 class TrialSpec(Strict):
     start: tuple[Number, Number, Number]  # x, y, yaw in degrees
     goal: XY
+    # extension of format 1: run this trial although its shortest path passes a gap narrower than
+    # TRIAL_MARGIN_M beyond the robot radius (else it is refused); its record is marked narrow
+    allow_narrow: Flag = False
 
 
 class TrialGenerateSpec(Strict):
     count: Annotated[int, Field(strict=True, ge=1, le=10_000)]
     min_distance: NonNegative = 0.0
     max_distance: Positive | None = None  # extension of format 1: an upper bound on shortest_m
+    # extension of format 1: the room a trial's shortest path leaves the robot beyond its radius, on
+    # each side, in its narrowest gap (scenarios.gaps); 0 keeps every trial the robot fits through
+    margin: Annotated[float, Field(strict=True, allow_inf_nan=False, ge=0, le=GAP_CAP_M)] = TRIAL_MARGIN_M
 
     @model_validator(mode="after")
     def _range(self) -> TrialGenerateSpec:
