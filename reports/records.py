@@ -151,6 +151,24 @@ class DiskParts(Record):
 # --- manifest.json -----------------------------------------------------------------------------
 
 
+class MapImportInfo(Record):
+    """What a map world's import changed (``scenarios.map_import.MapImport``): its rules, then
+    pixels of the map: islands below the resolvable size and their pixels removed or grown, slits
+    closed, laser-fan pixels made wall, free pixels detached; the world's and the raw map's free
+    pixels, and how many differ between them."""
+
+    rules: dict[str, Any] = Field(default_factory=dict)
+    islands: int | None = None
+    removed_px: int | None = None
+    grown_px: int | None = None
+    closed_px: int | None = None
+    fan_px: int | None = None
+    detached_px: int | None = None
+    free_px: int | None = None
+    raw_free_px: int | None = None
+    changed_px: int | None = None
+
+
 class ScenarioInfo(Record):
     """The scenario's summary (``Scenario.summary``) and its file."""
 
@@ -163,6 +181,7 @@ class ScenarioInfo(Record):
     trial_count: int | None = None
     trial_distance_mean_m: Number | None = None
     bounds_m: list[Number] | None = None
+    map_import: MapImportInfo | None = None  # a map world's import (absent for shape worlds)
 
 
 class Protocol(Record):

@@ -99,6 +99,7 @@ class Scenario:
             "changes": len(self.spec.world.changes),
             "raster": {"resolution": self.world.resolution, "shape": list(self.world.shape)},
             "sensor_rays": self.spec.sensor.rays,
+            **({"map_import": self.world.map_import.as_dict()} if self.world.map_import is not None else {}),
         }
 
 
@@ -206,7 +207,7 @@ def build_scenario(spec: ScenarioSpec, path: Path, with_trials: bool = True) -> 
     ``ScenarioError`` naming the key of anything that cannot be resolved."""
     rng = np.random.default_rng(spec.seed)
     try:
-        world = build_world(spec.world, path)
+        world = build_world(spec.world, path, spec.robot, spec.sensor)
     except ValueError as exc:
         raise ScenarioError(path, "world", str(exc)) from None
     check_connected(spec, path, world)

@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from navkit.errors import FileProblem
 from scenarios.strict_yaml import YamlProblem, load_file
@@ -66,8 +66,35 @@ class ObstacleSpec(Strict):
     yaw: Number = 0.0  # degrees
 
 
+class MapCleanSpec(Strict):
+    """The map import's rules (``scenarios.map_import``; docs/DESIGN.md, "Map worlds")."""
+
+    # islands of non-free cells smaller than the lidar resolves at resolve_range: made free,
+    # grown to that size, or kept as the map draws them
+    small_obstacles: Literal["remove", "grow", "keep"] = "remove"
+    resolve_range: Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=MAX_SENSOR_RANGE_M)] = 3.0  # m
+    close_gaps: Flag = True  # free slits narrower than that size become wall
+    fans: Flag = True  # free cells no robot body covers, reaching unknown space, become wall
+
+
+RAW_MAP = {"small_obstacles": "keep", "close_gaps": False, "fans": False}
+
+
 class MapSpec(Strict):
     yaml: str  # a ROS map_server YAML file, relative to the scenario file
+    # extension of format 1: true (the default rules), false (the raw map) or the rules one by one
+    clean: MapCleanSpec = MapCleanSpec()
+
+    @field_validator("clean", mode="before")
+    @classmethod
+    def _clean(cls, value: Any) -> Any:
+        if value is True:
+            return {}
+        if value is False:
+            return RAW_MAP
+        if not isinstance(value, dict):
+            raise ValueError("must be true, false or a mapping of rules (small_obstacles, resolve_range, close_gaps, fans)")
+        return value
 
 
 class WorldSpec(Strict):
@@ -255,6 +282,14 @@ def check_spec(spec: ScenarioSpec, file: str | Path) -> ScenarioSpec:
             "sensor.mount_height",
             f"{spec.sensor.mount_height} m is not below world.wall_height {spec.world.wall_height} m: "
             "the lidar would look over the walls" + (" from above the ceiling" if spec.world.ceiling else ""),
+        )
+    clean = spec.world.map.clean if spec.world.map is not None else None
+    uses_range = clean is not None and (clean.small_obstacles != "keep" or clean.close_gaps)
+    if clean is not None and uses_range and clean.resolve_range > spec.sensor.max_range:
+        raise ScenarioError(
+            file,
+            "world.map.clean.resolve_range",
+            f"{clean.resolve_range} m is beyond sensor.max_range {spec.sensor.max_range} m: the lidar sees nothing there",
         )
     return spec
 

@@ -10,7 +10,10 @@ piece of the fit space (``scenarios.route_space``), made into something a route 
    the roomy space (its tip would be too tight to turn at), nor through a gap to a pocket of
    less than ``MIN_ROOMY_M2`` of roomy space;
 2. loops round small obstacles (chairs, pillars, lidar speckles: less than
-   ``SMALL_OBSTACLE_M2``) are opened at their narrowest point; short corner spurs are pruned.
+   ``SMALL_OBSTACLE_M2``) are opened at their narrowest point; short corner spurs are pruned
+   (not a short branch whose tip has a robot radius more clearance than its junction: it runs
+   to the middle of a small room, as one does when the loop through a room with two doors has
+   been opened next to it; a corner spur loses clearance towards its corner).
 
 ``skeleton_walk`` then walks it depth first from a dead end (chosen by the scenario's random
 generator) down every branch and back, cell centre by cell centre. Rasters are (H, W) bool,
@@ -45,7 +48,10 @@ def _neighbours(mask: NDArray[np.bool_]) -> NDArray[np.int32]:
 OFFSETS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
 
 
-def _prune_spurs(skeleton: NDArray[np.bool_], max_cells: int, passes: int = 2) -> NDArray[np.bool_]:
+def _prune_spurs(skeleton: NDArray[np.bool_], max_cells: int, clear: NDArray, climb: float, passes: int = 2) -> NDArray[np.bool_]:
+    """Remove short branches that end at a junction (corner spurs: the medial axis running into a
+    corner, losing clearance); a branch whose tip has ``climb`` more clearance than its junction
+    runs to the middle of a small room and stays."""
     skeleton = skeleton.copy()
     h, w = skeleton.shape
     for _ in range(passes):
@@ -76,7 +82,8 @@ def _prune_spurs(skeleton: NDArray[np.bool_], max_cells: int, passes: int = 2) -
                 for rr, cc in ((branch[-1][0] + dr, branch[-1][1] + dc) for dr, dc in OFFSETS)
                 if 0 <= rr < h and 0 <= cc < w
             )
-            if ends_at_junction:
+            into_room = clear[branch[0]] >= clear[branch[-1]] + climb
+            if ends_at_junction and not into_room:
                 for cell in branch:
                     skeleton[cell] = False
         skeleton = skeletonize(skeleton)
@@ -284,7 +291,7 @@ def route_skeleton(world: World, space: RouteSpace) -> NDArray[np.bool_]:
         kept = peeled if peeled.any() else kept
     kept = _largest(kept)
     kept = _open_small_loops(kept, world, clear, SMALL_OBSTACLE_M2)
-    kept = _prune_spurs(kept, max_cells=int(SPUR_LENGTH_M / world.resolution))
+    kept = _prune_spurs(kept, int(SPUR_LENGTH_M / world.resolution), clear, climb=space.radius)
     return _largest(kept)
 
 

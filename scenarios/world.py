@@ -11,8 +11,10 @@ corridors ∪ rooms, extruded to ``wall_height``; obstacles are boxes of their o
 
 ROS maps (map_server YAML + image): pixel p = value/255, inverted unless ``negate``;
 p ≥ occupied_thresh is occupied, p ≤ free_thresh is free, anything else unknown (a wall here);
-``origin`` is the pose of the lower-left pixel and image row 0 is the largest y. The largest
-connected free component is the world's free space.
+``origin`` is the pose of the lower-left pixel and image row 0 is the largest y. The map's cells
+pass the import rules of ``scenarios.map_import`` (stated in the scenario's lidar and robot:
+blobs it cannot resolve, wall gaps, laser fans; ``world.map.clean``), and the largest connected
+free component is the world's free space.
 """
 
 from __future__ import annotations
@@ -31,7 +33,16 @@ from shapely.ops import unary_union
 
 from navkit import raster
 from navkit.raster import GridFrame
-from scenarios.schema import MAX_RASTER_CELLS, ObstacleSpec, ScenarioError, WorldSpec, read_yaml
+from scenarios.map_import import ImportRules, MapImport, import_map, resolvable_size
+from scenarios.schema import (
+    MAX_RASTER_CELLS,
+    ObstacleSpec,
+    RobotSpec,
+    ScenarioError,
+    SensorSpec,
+    WorldSpec,
+    read_yaml,
+)
 
 PADDING_M = 1.0  # wall margin around the free space in a shape world's raster
 # what a scenario takes per raster cell at its peak: the rasters, clearance and labels of the
@@ -72,6 +83,7 @@ class World:
     obstacles: list[ObstacleSpec] = field(default_factory=list)
     geometry: Polygon | MultiPolygon | None = None  # exact free space of a shape world
     changes: list[ObstacleSpec] = field(default_factory=list)  # navigation-time boxes (in ``obstacles`` once applied)
+    map_import: MapImport | None = None  # what the import rules changed (a map world's)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -229,12 +241,12 @@ def shape_world(spec: WorldSpec) -> World:
 # ROS map_server worlds
 
 
-def read_ros_map(
+def read_map_cells(
     yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml"
-) -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
-    """Free cells (row 0 = lowest y), origin and resolution of a map_server map (``navkit.raster``,
-    read as strictly as a scenario file; a map too large for this machine is refused before its
-    image is decoded)."""
+) -> tuple[NDArray[np.uint8], NDArray[np.float64], float]:
+    """Cells (UNKNOWN / FREE / OCCUPIED, row 0 = lowest y), origin and resolution of a map_server
+    map (``navkit.raster``, read as strictly as a scenario file; a map too large for this machine
+    is refused before its image is decoded)."""
     if yaml_path.is_dir():
         raise ScenarioError(scenario_file, key, f"{yaml_path} is a folder, not a map_server YAML file")
     if not yaml_path.is_file():
@@ -247,16 +259,15 @@ def read_ros_map(
         ros_map = raster.read_map_server(yaml_path, check_size=check_size, read_yaml=read_yaml)
     except raster.MapFileError as exc:
         raise ScenarioError(exc.file, exc.key, exc.reason) from None
-    return ros_map.cells == raster.FREE, ros_map.frame.origin, ros_map.frame.resolution
+    return ros_map.cells, ros_map.frame.origin, ros_map.frame.resolution
 
 
-def largest_component(free: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    labels, count = ndimage.label(free, structure=np.ones((3, 3), bool))
-    if count <= 1:
-        return free
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    return labels == int(np.argmax(sizes))
+def read_ros_map(
+    yaml_path: Path, scenario_file: str | Path, key: str = "world.map.yaml"
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], float]:
+    """Free cells (row 0 = lowest y), origin and resolution of a map_server map (``read_map_cells``)."""
+    cells, origin, resolution = read_map_cells(yaml_path, scenario_file, key)
+    return cells == raster.FREE, origin, resolution
 
 
 def raster_segments(free: NDArray[np.bool_], origin: NDArray, res: float) -> NDArray[np.float64]:
@@ -285,12 +296,31 @@ def raster_segments(free: NDArray[np.bool_], origin: NDArray, res: float) -> NDA
     return np.concatenate(segments, axis=0) if segments else np.zeros((0, 2, 2))
 
 
-def map_world(spec: WorldSpec, scenario_file: Path) -> World:
+def import_rules(spec: WorldSpec, robot: RobotSpec, sensor: SensorSpec) -> ImportRules:
+    """The import rules of a map world: ``world.map.clean`` in the scenario's lidar and robot."""
     assert spec.map is not None
-    free, origin, res = read_ros_map((scenario_file.parent / spec.map.yaml), scenario_file)
-    structure = largest_component(free)
+    clean = spec.map.clean
+    return ImportRules(
+        small_obstacles=clean.small_obstacles,
+        close_gaps=clean.close_gaps,
+        fans=clean.fans,
+        resolve_range_m=clean.resolve_range,
+        resolvable_m=resolvable_size(clean.resolve_range, sensor.horizontal_resolution),
+        robot_radius_m=robot.radius,
+    )
+
+
+def map_world(spec: WorldSpec, scenario_file: Path, robot: RobotSpec | None = None, sensor: SensorSpec | None = None) -> World:
+    """The world of a ROS map, its cells cleaned by the import rules for ``robot`` and ``sensor``
+    (the format's defaults if not given)."""
+    assert spec.map is not None
+    cells, origin, res = read_map_cells((scenario_file.parent / spec.map.yaml), scenario_file)
+    structure, report = import_map(cells, res, import_rules(spec, robot or RobotSpec(), sensor or SensorSpec()))
     if not structure.any():
-        raise ScenarioError(scenario_file, "world.map", "the map has no free cells")
+        reason = "the map has no free cells"
+        if report.raw_free_px:
+            reason = "no free space is left by the import rules (world.map.clean: false keeps the raw map)"
+        raise ScenarioError(scenario_file, "world.map", reason)
     free = structure.copy()
     if spec.obstacles:
         h, w = free.shape
@@ -305,12 +335,14 @@ def map_world(spec: WorldSpec, scenario_file: Path) -> World:
         wall_height=spec.wall_height,
         ceiling=spec.ceiling,
         obstacles=list(spec.obstacles),
+        map_import=report,
     )
 
 
-def build_world(spec: WorldSpec, scenario_file: Path) -> World:
-    """The mapping stage's world (``spec.changes`` listed in ``changes``, not applied)."""
-    world = map_world(spec, scenario_file) if spec.map is not None else shape_world(spec)
+def build_world(spec: WorldSpec, scenario_file: Path, robot: RobotSpec | None = None, sensor: SensorSpec | None = None) -> World:
+    """The mapping stage's world (``spec.changes`` listed in ``changes``, not applied); a map
+    world's import rules use ``robot`` and ``sensor`` (the format's defaults if not given)."""
+    world = map_world(spec, scenario_file, robot, sensor) if spec.map is not None else shape_world(spec)
     world.changes = list(spec.changes)
     return world
 
@@ -336,4 +368,5 @@ def with_changes(world: World) -> World:
         obstacles=[*world.obstacles, *world.changes],
         geometry=world.geometry.difference(boxes) if world.geometry is not None else None,
         changes=list(world.changes),
+        map_import=world.map_import,
     )

@@ -45,8 +45,32 @@ def scenario_show(
         return
     table = Table(show_header=False)
     for key, value in summary.items():
-        table.add_row(key, str(value))
+        table.add_row(key, map_import_text(value) if key == "map_import" else str(value))
     console.print(table)
+
+
+def map_import_text(report: dict) -> str:
+    """What a map world's import changed (``Scenario.summary()["map_import"]``), in a few lines."""
+    rules = report["rules"]
+    if not (rules["small_obstacles"] != "keep" or rules["close_gaps"] or rules["fans"]):
+        return f"the raw map (clean: false): {report['free_px']} free pixels"
+    seen = f"{rules['resolvable_m'] * 100:.1f} cm, what 2 lidar rays hit at {rules['resolve_range_m']:g} m"
+    small = {
+        "remove": f"removed {report['removed_px']} px",
+        "grow": f"grown by {report['grown_px']} px",
+        "keep": "kept",
+    }[rules["small_obstacles"]]
+    lines = [
+        f"small obstacles: {report['islands']} islands under {seen}: {small}",
+        f"wall gaps: {report['closed_px']} px closed (slits up to {rules['gap_px']} px)"
+        if rules["close_gaps"]
+        else "wall gaps: kept",
+        f"laser fans: {report['fan_px']} px made wall (no robot of radius {rules['robot_radius_m']:g} m fits, reaching unknown)"
+        if rules["fans"]
+        else "laser fans: kept",
+        f"detached: {report['detached_px']} px; free {report['free_px']} px, {report['changed_px']} px differ from the raw map",
+    ]
+    return "\n".join(lines)
 
 
 @scenario_app.command("validate")
