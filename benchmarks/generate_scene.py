@@ -1,4 +1,4 @@
-"""Write a generated scene as a scenario file, for runs, studies and tuning.
+r"""Write a generated scene as a scenario file, for runs, studies and tuning.
 
 Development and tuning happen on such scenes, with seeds apart from the benchmark's, never on a
 bundled benchmark scene (docs/NOTES.md, "Tuning rule"). Kinds:
@@ -19,8 +19,8 @@ mapping stage in both settings:
 
 A SLAM-like map with more speckle and no laser fans:
 
-    .venv/bin/python benchmarks/generate_scene.py slam-ring --seed 301 \
-        --artefacts speckle_per_100m2=6,fans_per_100m=0 -o /tmp/s301/slam_ring301.yaml
+    .venv/bin/python benchmarks/generate_scene.py slam-ring --seed 301 -o /tmp/s301/ring.yaml \
+        --artefacts speckle_per_100m2=6,fans_per_100m=0
 
 Same arguments, same files (byte for byte).
 """
