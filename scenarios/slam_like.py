@@ -21,7 +21,8 @@ and draws the result as a map_server map would show it, with the artefacts a rea
   people), and chairs (``chairs_per_100m2``): four one-pixel legs on a 0.4-0.5 m square.
 
 An exterior wall is one whose far side is unknown (the outside of the building, or a block's
-inside the mapping never entered): a walk from a free pixel across it meets unknown before free.
+inside the mapping never entered): a straight walk from a free pixel across it meets unknown
+before free, and at least ``OUTSIDE_M`` of it (not the unknown core of a thick wall).
 Counts are the densities times the building's exterior wall length or free area, rounded; the
 record (``SlamRecord``) says where each artefact is. The map's ground truth is the map itself, as
 for any real map. Same building, seed and amounts, same map, byte for byte.
@@ -48,6 +49,7 @@ from scenarios.world import largest_component, shape_world
 RESOLUTION = 0.05  # the map's pixel (the generated buildings' raster)
 EIGHT = np.ones((3, 3), bool)
 DIRECTIONS = ((1, 0), (-1, 0), (0, 1), (0, -1))  # (d_row, d_col): outward across a wall
+OUTSIDE_M = 1.0  # beyond an exterior wall, at least this much unknown straight ahead
 
 
 @dataclass(frozen=True)
@@ -61,7 +63,7 @@ class Artefacts:
     breaks_per_100m: float = 4.0  # gaps through exterior walls
     break_px: tuple[int, int] = (1, 2)  # a gap's width in pixels
     fans_per_100m: float = 3.0  # laser fans through exterior walls
-    fan_rays: tuple[int, int] = (4, 9)  # rays a fan
+    fan_rays: tuple[int, int] = (4, 9)  # rays a fan (at most one per 2 pixels of its window)
     fan_reach_m: tuple[float, float] = (1.0, 5.0)  # how far a ray reaches beyond the wall
     speckle_per_100m2: float = 2.0  # isolated 1-3 pixel occupied blobs
     chairs_per_100m2: float = 0.4  # four one-pixel legs each
@@ -218,15 +220,21 @@ class _Canvas:
 
     def exterior_faces(self, max_px: int) -> list[NDArray[np.int64]]:
         """Per direction of ``DIRECTIONS``: the free pixels (K, 2) [row, col] whose neighbour that way
-        is a wall that a walk of at most ``max_px`` pixels crosses into unknown (an exterior wall)."""
+        is a wall that a walk of at most ``max_px`` pixels crosses into unknown that goes on for
+        ``OUTSIDE_M`` straight ahead (an exterior wall; not the unknown core of a thick wall)."""
         cells = self.cells
+        unknown = (cells == UNKNOWN).astype(np.uint8)
+        deep_px = int(round(OUTSIDE_M / RESOLUTION))
         faces = []
         for d in DIRECTIONS:
+            deep = unknown.copy()
+            for j in range(1, deep_px):
+                deep &= _shifted(unknown, d, j, 0)
             alive = (cells == FREE) & (_shifted(cells, d, 1, UNKNOWN) == OCCUPIED)
             exterior = np.zeros_like(alive)
             for k in range(2, max_px + 2):
                 ahead = _shifted(cells, d, k, FREE)
-                exterior |= alive & (ahead == UNKNOWN)
+                exterior |= alive & (_shifted(deep, d, k, 0) == 1)
                 alive &= ahead == OCCUPIED
             faces.append(np.argwhere(exterior))
         return faces
@@ -324,6 +332,7 @@ class _Canvas:
         gets out. A ray that meets free space beyond a wall (furniture, an inside wall) is dropped."""
         dr, dc = DIRECTIONS[k]
         n = int(self.rng.integers(artefacts.fan_rays[0], artefacts.fan_rays[1] + 1))
+        n = min(n, half + 1)  # rays at least 2 pixels apart in the window: one-pixel rays, not a blob
         offsets = np.linspace(-half, half, n) if n > 1 else np.zeros(1)
         rays = []
         for offset in offsets:
