@@ -237,7 +237,7 @@ def _rect(axis: str, along: tuple[float, float], across: tuple[float, float]) ->
     return {"center": [round((c0 + c1) / 2, 3), round((a0 + a1) / 2, 3)], "size": [round(c1 - c0, 3), round(a1 - a0, 3)]}
 
 
-def _furnish(rng: np.random.Generator, room: Polygon, door: Polygon) -> list[dict]:
+def furnish(rng: np.random.Generator, room: Polygon, door: Polygon) -> list[dict]:
     """Furniture of several heights against a room's walls (none near the door), and a table in
     the middle of a big room; the room's middle and the way in stay free."""
     x0, y0, x1, y1 = room.bounds
@@ -404,7 +404,7 @@ def ring_building(
                     for item in template[4]
                 ]
             else:
-                furniture = _furnish(rng, room_poly, door_poly)
+                furniture = furnish(rng, room_poly, door_poly)
             if identical:
                 template = template or (w, dw, offset, np.asarray(room["center"], float), furniture)
                 plain.append(door_poly.buffer(w / 2 + 1.0))
