@@ -42,9 +42,10 @@ from skimage.draw import line as raster_line
 from navkit import raster
 from navkit.files import atomic_write
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
+from scenarios.map_import import largest_component
 from scenarios.schema import parse_spec
 from scenarios.slam_doors import DOOR_CLEAR_M, Door, slam_doors
-from scenarios.world import largest_component, shape_world
+from scenarios.world import shape_world
 
 RESOLUTION = 0.05  # the map's pixel (the generated buildings' raster)
 EIGHT = np.ones((3, 3), bool)

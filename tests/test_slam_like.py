@@ -21,7 +21,9 @@ from scipy import ndimage
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, read_map_server
 from scenarios import load_scenario
 from scenarios.generators import ring_building
+from scenarios.map_import import import_map
 from scenarios.slam_like import RESOLUTION, Artefacts, SlamMap, slam_map, write_slam_scenario
+from scenarios.world import import_rules
 
 EIGHT = np.ones((3, 3), bool)
 FOUR = ndimage.generate_binary_structure(2, 1)
@@ -178,8 +180,13 @@ def test_a_default_slam_map_loads_as_a_scenario_its_free_space_one_piece_its_doo
     ros = read_map_server(path.with_name("slam_ring41_map.yaml"))
     assert (ros.cells == made.cells).all()
     assert ndimage.label(made.cells == FREE, structure=EIGHT)[1] == 1
-    scenario = load_scenario(path)  # today's importer: the largest free piece is the world
-    assert (scenario.world.free == (made.cells == FREE)).all()
+    scenario = load_scenario(path)
+    # the world is what the importer's rules make of the map (docs/DESIGN.md, "Map worlds"): the
+    # artefacts are part of the map, the importer cleans them (specks removed, fans made wall)
+    spec = scenario.spec
+    expected, report = import_map(made.cells, RESOLUTION, import_rules(spec.world, spec.robot, spec.sensor))
+    assert (scenario.world.free == expected).all()
+    assert report.islands == counts["speckle"] + counts["chair_legs"]  # every speck and chair leg, no more
     assert len(scenario.trials) == 2 and scenario.route_length_m > 80
     for door in made.record.doors:
         assert door_run(made, door.centre, door.axis) == round(door.width_m / RESOLUTION)
