@@ -291,3 +291,31 @@ class PathFollower:
         i = int(np.searchsorted(self._arc, arc, side="right")) - 1
         fraction = (arc - self._arc[i]) / (self._arc[i + 1] - self._arc[i])
         return self._points[i] + fraction * (self._points[i + 1] - self._points[i])
+
+
+class ProgressCheck:
+    """Whether the robot makes progress: it has moved ``distance`` metres from its last checkpoint
+    within ``period`` seconds (Nav2's ``SimpleProgressChecker``: 0.5 m in 10 s by default). Positions
+    are the odometry's (any frame that does not jump); a move past ``distance`` sets a new checkpoint,
+    and so does a stall once reported, so that the next is reported ``period`` later."""
+
+    def __init__(self, distance: float, period: float) -> None:
+        self.distance = distance
+        self.period = period
+        self.reset()
+
+    def reset(self) -> None:
+        self._stamp: float | None = None
+        self._xy = np.zeros(2)
+
+    def stalled(self, stamp: float, xy: ArrayLike) -> bool:
+        """True when ``period`` has passed at ``stamp`` without ``distance`` of travel from the
+        checkpoint (position ``xy``, (2+,))."""
+        xy = np.asarray(xy, dtype=np.float64)[:2]
+        if self._stamp is None or math.hypot(*(xy - self._xy)) > self.distance:
+            self._stamp, self._xy = stamp, xy.copy()
+            return False
+        if stamp - self._stamp < self.period:
+            return False
+        self._stamp, self._xy = stamp, xy.copy()
+        return True

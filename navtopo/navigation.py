@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navkit.follower import PathFollower
+from navkit.follower import PathFollower, ProgressCheck
 from navkit.geometry import between, compose, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
 from navkit.raster import FREE
@@ -135,7 +135,8 @@ class Navigator:
     _goal_short: bool = False  # the local path to the goal ends short of it: the robot does not fit there
     obstacles: ObstacleMemory = field(default_factory=ObstacleMemory)  # returns the map lacks, until seen through
     _obstacle_vertex: int | None = None  # the frame of the remembered obstacles
-    _progress: tuple[float, NDArray[np.float64]] | None = None
+    # no 0.1 m of odometry for ``stuck_time`` (set at reset)
+    _progress: ProgressCheck = field(default_factory=lambda: ProgressCheck(0.1, np.inf))
     _stuck_once: bool = False
     _tentative: Hypothesis | None = None  # the start-up hypothesis the robot drives by
     _odometer: float = 0.0  # metres of odometry this trial
@@ -175,7 +176,7 @@ class Navigator:
         self._target_is_goal = self._goal_short = False
         self.obstacles.clear()
         self._obstacle_vertex = None
-        self._progress = None
+        self._progress = ProgressCheck(0.1, self.config.stuck_time)
         self._stuck_once = False
         self.explorer.reset()
         self._tentative = None
@@ -424,13 +425,8 @@ class Navigator:
 
     def _stuck(self, obs: Observation, pose: NDArray) -> bool:
         """No progress for ``stuck_time``: remove the edge being followed and replan; twice: fail."""
-        odom = np.asarray(obs.odom, dtype=np.float64)
-        if self._progress is None or np.hypot(*(odom[:2] - self._progress[1][:2])) > 0.1:
-            self._progress = (obs.stamp, odom.copy())
+        if not self._progress.stalled(obs.stamp, obs.odom):
             return False
-        if obs.stamp - self._progress[0] < self.config.stuck_time:
-            return False
-        self._progress = (obs.stamp, odom.copy())
         if self._stuck_once or not self._route or len(self._route) < 2:
             route = self._route or []
             where = f"location {route[0]} toward location {route[1]}" if len(route) > 1 else "the goal's location"

@@ -255,3 +255,48 @@ def test_the_config_refuses_unknown_keys_and_names_the_noisy_odometry_recipe():
     assert noisy.odometry.source == "lidar" and MetricGridConfig().odometry.source == "wheel"
     assert noisy.pose_graph.odometry_sigma_yaw_deg < MetricGridConfig().pose_graph.odometry_sigma_yaw_deg
     assert MetricGridConfig.model_validate(noisy.model_dump(mode="json")) == noisy
+
+
+def _blocked_goal(system, sim, tiny, trial):
+    """Start a trial by hand, then remember a ring of obstacle points round the goal (out of the
+    lidar's reach: nothing clears them) that shuts it off: a costmap that kept a phantom."""
+    map_from_world = se2.inverse(tiny.route_start)
+    sim.reset(trial.start)
+    system.reset()
+    system.set_initial_pose(se2.between(tiny.route_start, trial.start))
+    goal = se2.transform_points(map_from_world, trial.goal[None, :])[0]
+    system.set_goal(goal)
+    angles = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    system.obstacles.memory.mark(goal + 0.8 * np.stack([np.cos(angles), np.sin(angles)], 1))
+    assert np.hypot(*(trial.goal - trial.start[:2])) > system.config.planning.new_obstacle_range + 1.0
+
+
+def test_no_path_for_remembered_obstacles_clears_them_and_plans_again_as_nav2s_recovery_does(tiny, sim, mapped, context):
+    _, directory, _ = mapped
+    trial = tiny.trials[0]
+    strict = MetricGrid.load(directory, MetricGridConfig.model_validate({"planning": {"recoveries": 0}}), context)
+    _blocked_goal(strict, sim, tiny, trial)
+    strict.step(sim.observe())
+    assert strict.status.state == Status.FAILED and strict.status.reason == "no_path"
+
+    system = MetricGrid.load(directory, MetricGridConfig(), context)
+    _blocked_goal(system, sim, tiny, trial)
+    for _ in range(3):
+        sim.step(system.step(sim.observe()))
+    assert system.status.state == Status.ACTIVE and system.follower.has_path
+    assert system.counters["recoveries"] == 1
+    goal = se2.transform_points(se2.inverse(tiny.route_start), trial.goal[None, :])[0]
+    remembered = system.obstacles.points
+    assert not (np.hypot(*(remembered - goal).T) < 1.0).any()  # the phantom ring is forgotten
+
+
+def test_the_progress_check_reports_a_stall_once_a_period_and_a_move_resets_it():
+    from navkit.follower import ProgressCheck
+
+    check = ProgressCheck(0.5, 10.0)
+    assert not check.stalled(0.0, [0.0, 0.0])
+    assert not check.stalled(9.9, [0.4, 0.0])  # 0.4 m: not yet progress, and not yet 10 s
+    assert check.stalled(10.0, [0.45, 0.0])
+    assert not check.stalled(15.0, [0.45, 0.0])  # the next report comes a period later
+    assert not check.stalled(19.0, [1.0, 0.0])  # 0.55 m from the checkpoint: a new one
+    assert not check.stalled(28.9, [1.2, 0.0]) and check.stalled(29.0, [1.2, 0.0])

@@ -53,6 +53,16 @@ class PlanningConfig(BaseModel):
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block")
     new_obstacle_distance: float = Field(0.25, gt=0, description="m from every mapped wall: an obstacle the map lacks")
     new_obstacle_range: float = Field(6.0, gt=0, description="m; only nearer returns can be new obstacles")
+    progress_distance: float = Field(
+        0.5, gt=0, description="m of odometry the robot must cover every progress_time (Nav2's progress checker)"
+    )
+    progress_time: float = Field(10.0, gt=0, description="s of simulated time; no progress_distance in it: recover")
+    recoveries: int = Field(
+        3,
+        ge=0,
+        description="recoveries per goal (Nav2's behaviour tree: clear the costmap, plan again), on no progress or on no "
+        "path while obstacles are remembered; past them the goal fails",
+    )
 
 
 #: Overrides for the benchmark's noisy setting (wheel odometry with 2 % and 0.5°/m random walks,

@@ -27,7 +27,11 @@ the new obstacles, the replanning decision (due, or the path ahead blocked), the
 Where it fails (``status.stage``, docs/DESIGN.md "Trial end"): ``startup`` until the pose is found
 on the map (``not_localized`` after the relocalization timeout), ``localization`` while the tracker
 is lost, ``global_plan`` when no level of the planner has a path (``no_path``; the detail names the
-ends, the levels and which end had no passable cell); the status's detail says what it is doing.
+ends, the levels and which end had no passable cell), ``follower`` when it makes no progress
+(``stuck``). As a Nav2 configuration recovers (its behaviour tree after a failed plan, or its progress
+checker: 0.5 m in 10 s), a goal gets ``planning.recoveries`` recoveries: the remembered obstacles are
+forgotten (the costmap cleared) and the path planned again; a ``no_path`` with obstacles remembered,
+or no progress, fails only once they are spent. The status's detail says what it is doing.
 
 Memory (``memory()``, the runner's breakdown): ``map`` is the trinary grid as loaded,
 ``localization`` the distance field of the scan-to-map fit and the relocalizer's score field,
@@ -45,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
-from navkit.follower import PathFollower
+from navkit.follower import PathFollower, ProgressCheck
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.scan import obstacle_points
 from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
@@ -70,7 +74,7 @@ __all__ = [
 ]
 
 #: the planner's counters, reported before the tracker's (``tracking.COUNTERS``)
-PLAN_COUNTERS = ("plans", "replans_blocked", "plans_failed", "fallback_plans")
+PLAN_COUNTERS = ("plans", "replans_blocked", "plans_failed", "fallback_plans", "recoveries")
 
 
 class MetricGrid:
@@ -94,6 +98,8 @@ class MetricGrid:
         self.planner: GridPlanner | None = None
         self.obstacles = UnmappedObstacles(cfg.planning)
         self.follower = PathFollower(cfg.follower)
+        self.progress = ProgressCheck(cfg.planning.progress_distance, cfg.planning.progress_time)
+        self._recoveries = 0  # this goal's
         self.planning_ms: list[float] = []
         self.plan_counters = dict.fromkeys(PLAN_COUNTERS, 0)
         self._goal: NDArray[np.float64] | None = None
@@ -230,6 +236,8 @@ class MetricGrid:
         self.follower.clear()
         self._last_plan_stamp = -np.inf
         self.obstacles.clear()
+        self.progress.reset()
+        self._recoveries = 0
 
     def step(self, obs: Observation) -> Command:
         if self._goal is None:
@@ -247,6 +255,13 @@ class MetricGrid:
             return Command(0.0, self.config.relocalization.turn_rate)
         self._keep_stage()
         self.obstacles.update(pose, points, self.tracker.localizer)
+        if self.progress.stalled(obs.stamp, obs.odom) and not self._recover():
+            detail = (
+                f"no {self.config.planning.progress_distance:g} m of progress in {self.config.planning.progress_time:g} s "
+                f"after {self._recoveries} recoveries, at ({pose[0]:.2f}, {pose[1]:.2f}) in the map frame"
+            )
+            self.status = NavStatus(Status.FAILED, "stuck", FailureStage.FOLLOWER, detail)
+            return Command()
         due = not self.follower.has_path or obs.stamp - self._last_plan_stamp >= self.config.planning.replan_period
         blocked = not due and self._path_blocked(pose)
         if due or blocked:
@@ -257,6 +272,8 @@ class MetricGrid:
                 self.follower.set_path(path)
                 self._describe(self._following(pose, path))
             elif not self.follower.has_path:
+                if len(self.obstacles.points) and self._recover():
+                    return Command()  # plan again at the next tick, the remembered obstacles forgotten
                 assert self.planner is not None
                 detail = self.planner.why_no_path(pose[:2], self._goal, self.obstacles.points)
                 self.status = NavStatus(Status.FAILED, "no_path", FailureStage.GLOBAL_PLAN, detail)
@@ -268,6 +285,19 @@ class MetricGrid:
             self.status = NavStatus(Status.REACHED, detail=detail)
             return Command()
         return command
+
+    def _recover(self) -> bool:
+        """One recovery, if this goal has one left (Nav2's behaviour tree after a failed plan or the
+        progress checker): forget the remembered obstacles (clear the costmap), drop the path, plan
+        again at the next tick. False when none is left."""
+        if self._recoveries >= self.config.planning.recoveries:
+            return False
+        self._recoveries += 1
+        self.plan_counters["recoveries"] += 1
+        self.obstacles.clear()
+        self.follower.clear()
+        self._last_plan_stamp = -np.inf
+        return True
 
     # -- what the status says (docs/DESIGN.md, "Trial end") ----------------------------------------------
 
