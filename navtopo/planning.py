@@ -39,7 +39,7 @@ from navkit.geometry import compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import GridConfig, warp_window, warped_bounds
+from navtopo.local_grid import CroppedGrid, GridConfig, mean_direction, wall_direction, warp_window, warped_bounds
 
 
 class PlanningConfig(BaseModel):
@@ -64,6 +64,18 @@ class PlanningConfig(BaseModel):
         "stops (a path out to a vertex and back, round a place the graph joins the long way)",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
+    align_walls: bool = Field(
+        True,
+        description="a union grid's axes turned along the walls of its locations (a door across whole rows or "
+        "columns of cells, not a staircase of them); False: the location's own axes",
+    )
+    medial_passages: bool = Field(
+        True,
+        description="when no path keeps the robot radius plus half a cell from every wall cell, a passage along "
+        "its medial axis at the radius plus medial_margin from the wall cells' centres (a door of the robot's width "
+        "and a little more whose jambs a scan drew a cell into it)",
+    )
+    medial_margin: float = Field(0.0, ge=0, description="m beyond the robot radius on a passage's medial axis")
     unknown_detour: float = Field(
         1.5,
         ge=1.0,
@@ -152,37 +164,64 @@ class UnionGrid:
 
     vertex: int
     cells: NDArray[np.uint8]  # (H, W) UNKNOWN / FREE / OCCUPIED
-    frame: GridFrame
+    frame: GridFrame  # of the cells in the grid's axes (``yaw``): points go through ``to_cell`` / ``to_point``
+    yaw: float = 0.0  # the grid's axes in the location's frame: turned so that the walls run along them
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
-    _masks: dict[tuple[str, float], NDArray[np.bool_]] = field(default_factory=dict)
+    _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
     _wall_distance: NDArray[np.float32] | None = None
+
+    def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
+        """Points (N, 2+) of the location's frame -> cells (N, 2) [row, col] (no bounds check)."""
+        return self.frame.to_cell(_turned(np.asarray(xy, dtype=np.float64)[..., :2], -self.yaw))
+
+    def to_point(self, cells: NDArray) -> NDArray[np.float64]:
+        """Cells (N, 2) [row, col] -> their centres (N, 2) in the location's frame."""
+        return _turned(self.frame.to_world(cells), self.yaw)
+
+    def to_grid_axes(self, xy: NDArray) -> NDArray[np.float64]:
+        """Points (N, 2+) of the location's frame in the grid's axes (``frame``'s metres)."""
+        return _turned(np.asarray(xy, dtype=np.float64)[..., :2], -self.yaw)
+
+    def from_grid_axes(self, xy: NDArray) -> NDArray[np.float64]:
+        return _turned(np.asarray(xy, dtype=np.float64)[..., :2], self.yaw)
 
     def _free(self, kind: str, cells: NDArray[np.uint8] | None = None) -> NDArray[np.bool_]:
         cells = self.cells if cells is None else cells
         return cells == FREE if kind == "known" else cells != OCCUPIED
 
-    def mask(self, kind: str, radius: float) -> NDArray[np.bool_]:
+    def mask(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.bool_]:
         """Cells the robot's centre may take: known free (``known``) or not occupied (``unknown``), eroded
         by ``radius`` (``grid_search.inflate_free``), kept once made. One distance transform a kind
         serves every radius (a first plan asks for two: each its own transform was most of its time);
         it is kept as squared cells in 8 bits, capped at 255 (1.59 m at 0.1 m cells, beyond any
-        planning radius; a larger radius gets a transform of its own)."""
-        key = (kind, radius)
+        planning radius; a larger radius gets a transform of its own).
+
+        ``medial``: also the cells of the free space's medial axis (``medial_axis``) at least this far
+        from every non-free cell's centre: a passage too narrow for ``radius`` (a door of the robot's
+        width and a little more, its jambs a cell into it) passed along its middle."""
+        key = (kind, radius, medial is not None)
         if key not in self._masks:
             radius_cells = radius / self.frame.resolution
-            if radius_cells * radius_cells > CLEARANCE_CAP - 1:
+            if medial is None and radius_cells * radius_cells > CLEARANCE_CAP - 1:
                 self._masks[key] = grid_search.inflate_free(self._free(kind), radius, self.frame.resolution)
             else:
-                if kind not in self._clearance:
-                    squared = grid_search.clearance_squared(self._free(kind))
-                    self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
-                self._masks[key] = grid_search.clear_of(self._clearance[kind], radius, self.frame.resolution)
+                clearance = self._squared(kind)
+                mask = grid_search.clear_of(clearance, radius, self.frame.resolution)
+                if medial is not None:
+                    mask |= medial_axis(clearance) & grid_search.clear_of(clearance, medial, self.frame.resolution)
+                self._masks[key] = mask
         return self._masks[key]
+
+    def _squared(self, kind: str) -> NDArray[np.uint8]:
+        if kind not in self._clearance:
+            squared = grid_search.clearance_squared(self._free(kind))
+            self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
+        return self._clearance[kind]
 
     def fits(self, xy: NDArray, kind: str, radius: float) -> bool:
         """``mask(kind, radius)`` at the point (2,) (True off the grid), from the cells round it
         alone: no transform of the whole grid for one cell."""
-        cell = self.frame.to_cell(np.asarray(xy, dtype=np.float64)[None, :2])[0]
+        cell = self.to_cell(np.asarray(xy, dtype=np.float64)[None, :2])[0]
         height, width = self.cells.shape
         if not (0 <= cell[0] < height and 0 <= cell[1] < width):
             return True
@@ -209,7 +248,7 @@ class UnionGrid:
 
     def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
-        cells = self.frame.to_cell(xy)
+        cells = self.to_cell(xy)
         on_grid = inside(cells, array.shape)
         out = np.full(len(cells), outside, dtype=array.dtype)
         out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
@@ -222,17 +261,23 @@ class UnionGrid:
         return int(total + (self._wall_distance.nbytes if self._wall_distance is not None else 0))
 
 
-def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConfig, radius: float) -> UnionGrid:
-    """``vertex``'s grid and its neighbours', warped into its frame by the edges (see the module docstring)."""
+def build_union_grid(
+    graph: TopologicalGraph, vertex: int, grid_config: GridConfig, radius: float, align: bool = True
+) -> UnionGrid:
+    """``vertex``'s grid and its neighbours', warped into its frame by the edges (see the module
+    docstring); with ``align``, into its frame turned so that the walls run along the grid's axes."""
     size = 2 * int(round(radius / grid_config.resolution))
     res = grid_config.resolution
-    # warp(grid, T) is the grid seen from frame T given in the grid's own frame: ``vertex``'s
-    # origin lies at inverse(T_vertex_member) in ``member``'s frame
-    members = [(graph.vertices[m].grid, inverse(pose)) for m, pose in [(vertex, np.zeros(3)), *graph.neighbours(vertex)]]
+    placed = [(graph.vertices[m].grid, pose) for m, pose in [(vertex, np.zeros(3)), *graph.neighbours(vertex)]]
+    yaw = union_yaw(placed) if align else 0.0
+    # warp(grid, T) is the grid seen from frame T given in the grid's own frame: the union's axes
+    # (``vertex``'s origin, turned by ``yaw``) lie at inverse(T_vertex_member) (0, 0, yaw) in ``member``'s frame
+    axes = np.array([0.0, 0.0, yaw])
+    members = [(grid, compose(inverse(pose), axes)) for grid, pose in placed]
     boxes = np.array([warped_bounds(grid, pose, res, size, margin=3) for grid, pose in members]).reshape(-1, 4)
     boxes = boxes[(boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])]
     if not len(boxes):
-        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res))
+        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res), yaw)
     # only the window that the members can reach is warped (a few hundred cells a side of the
     # canvas's 2 * radius / resolution): a location's union grid cost ~1.2 ms, now a few tenths
     window = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
@@ -243,7 +288,7 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
     known_rows = np.flatnonzero((cells != UNKNOWN).any(axis=1))
     known_cols = np.flatnonzero((cells != UNKNOWN).any(axis=0))
     if known_rows.size == 0:
-        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res))
+        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res), yaw)
     r0 = max(window[0] + known_rows[0] - 2, 0) - window[0]
     r1 = min(window[0] + known_rows[-1] + 3, size) - window[0]
     c0 = max(window[2] + known_cols[0] - 2, 0) - window[2]
@@ -251,7 +296,18 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
     # the corner of the kept part's first cell on the canvas centred on the vertex's observation point;
     # a map-style frame from there (floor((x - origin) / res)), as the union grids have always been read
     origin = np.array([(window[2] + c0 - size // 2) * res, (window[0] + r0 - size // 2) * res])
-    return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res))
+    return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res), yaw)
+
+
+def union_yaw(placed: list[tuple[CroppedGrid, NDArray[np.float64]]]) -> float:
+    """The yaw (radians, in [-45°, 45°)) that turns a location's frame so that the walls of the
+    grids ``placed`` (each with its pose in that frame) run along its axes
+    (``local_grid.wall_direction``): a door or a corridor then crosses whole rows or columns of
+    cells, where at a slant its jambs' cells stand in a staircase and the planner, which moves from
+    cell to cell without cutting corners, finds it a cell or so narrower."""
+    directions = [wall_direction(grid.cells) for grid, _ in placed]
+    angles = [angle + float(pose[2]) for (angle, _), (_, pose) in zip(directions, placed, strict=True)]
+    return mean_direction(angles, [weight for _, weight in directions])
 
 
 class UnionGrids:
@@ -272,7 +328,7 @@ class UnionGrids:
         union = self._cache.get(vertex)
         if union is None:
             started = time.perf_counter()
-            union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius)
+            union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls)
             self._build_ms += (time.perf_counter() - started) * 1e3
             self._cache[vertex] = union
             if len(self._cache) > self.config.union_cache:
@@ -310,7 +366,13 @@ class LocalPlanner:
         resolution = grids.grid_config.resolution
         self.wide = robot_radius + resolution / 2 + config.inflation_margin
         self.tight = robot_radius + resolution / 2
-        self.levels = [("known", self.wide), ("known", self.tight), ("unknown", self.wide), ("unknown", self.tight)]
+        # the fallbacks in order: known free space with the margin, without; then a narrow passage
+        # along its middle (``UnionGrid.mask``'s medial); then the same with unknown cells as free
+        self.medial = robot_radius + config.medial_margin if config.medial_passages else None
+        steps: list[tuple[float, float | None]] = [(self.wide, None), (self.tight, None)]
+        if self.medial is not None:
+            steps.append((self.tight, self.medial))
+        self.levels: list[tuple[str, float, float | None]] = [(kind, r, m) for kind in ("known", "unknown") for r, m in steps]
 
     def target(
         self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None = None
@@ -326,7 +388,7 @@ class LocalPlanner:
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
         samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
         reach = self.wide + self.config.target_clearance
-        free = union.values_at(samples, _passable(union, "known", reach, blocked_xy), False)
+        free = union.values_at(samples, _passable(union, "known", reach, blocked_xy=blocked_xy), False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
         leaves = np.flatnonzero(~free[first:])
@@ -346,17 +408,27 @@ class LocalPlanner:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
         if there is none, or only one through unknown cells far round (``unknown_detour``)."""
         snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
-        masks = lambda level: _passable(union, *self.levels[level], blocked_xy)  # noqa: E731
+        masks = lambda level: _passable(union, *self.levels[level], blocked_xy=blocked_xy)  # noqa: E731
 
         # a target the robot does not fit at even next to unknown space (a goal estimated into a
         # wall) is approached as near as the free space allows, never driven into
-        fits = union.fits(np.asarray(target, dtype=np.float64), "unknown", self.tight)
-        planned = plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels), exact_goal=fits)
-        if planned is not None and self.levels[planned.level][0] == "unknown":
-            straight = float(np.hypot(*(np.asarray(target, dtype=np.float64)[:2] - start[:2])))
+        target = np.asarray(target, dtype=np.float64)[:2]
+        fits = union.fits(target, "unknown", self.tight) or (
+            self.medial is not None and union.fits(target, "unknown", self.medial)
+        )
+        ends = union.to_grid_axes(np.vstack([start[None, :2], target[None]]))
+        planned = plan_path(masks, union.frame, ends[0], ends[1], snap, levels=len(self.levels), exact_goal=fits)
+        if planned is None:
+            return None
+        if self.levels[planned.level][0] == "unknown":
+            straight = float(np.hypot(*(target - start[:2])))
             if planned.length > self.config.unknown_detour * straight + 1.0:
                 return None
-        return planned
+        points = union.from_grid_axes(planned.points)
+        points[0] = start[:2]  # exact, not turned there and back
+        if fits:
+            points[-1] = target
+        return PlannedPath(points, planned.level)
 
     def new_obstacles(self, union: UnionGrid, pose: NDArray, points: NDArray) -> NDArray[np.float64]:
         """Obstacle returns (N, 2+, robot frame) near the robot that no mapped wall explains, in v_cur's frame."""
@@ -368,12 +440,42 @@ class LocalPlanner:
         return xy[far]
 
 
-def _passable(union: UnionGrid, kind: str, radius: float, blocked_xy: NDArray | None) -> NDArray[np.bool_]:
-    """The union grid's cached ``mask(kind, radius)``, with new obstacles (N, 2+) blocked as far."""
+def _passable(
+    union: UnionGrid, kind: str, radius: float, medial: float | None = None, blocked_xy: NDArray | None = None
+) -> NDArray[np.bool_]:
+    """The union grid's cached ``mask(kind, radius, medial)``, with new obstacles (N, 2+) blocked as
+    far as ``radius``."""
     if blocked_xy is None or not len(blocked_xy):
-        return union.mask(kind, radius)
+        return union.mask(kind, radius, medial)
     blocked = cv2.dilate(_stamp(union, np.asarray(blocked_xy)[:, :2]), _disk(radius, union.frame.resolution)) > 0
-    return union.mask(kind, radius) & ~blocked
+    return union.mask(kind, radius, medial) & ~blocked
+
+
+def medial_axis(squared: NDArray) -> NDArray[np.bool_]:
+    """(H, W) the cells of a clearance raster (``grid_search.clearance_squared``, any monotone form)
+    on the medial axis of the free space: at least as clear as both neighbours on some line through
+    the cell (along a row, a column or a diagonal) and clearer than one of them. Across a passage
+    that is its middle cell, or its middle two; along a passage, where the clearance is level, no
+    cell counts by that line. Non-free cells (clearance 0) never count."""
+    clearance = np.asarray(squared).astype(np.int16)
+    padded = np.pad(clearance, 1, mode="constant", constant_values=0)
+    height, width = clearance.shape
+    centre = padded[1:-1, 1:-1]
+    on_axis = np.zeros(clearance.shape, bool)
+    for (r1, c1), (r2, c2) in (((0, 1), (2, 1)), ((1, 0), (1, 2)), ((0, 0), (2, 2)), ((0, 2), (2, 0))):
+        a = padded[r1 : r1 + height, c1 : c1 + width]
+        b = padded[r2 : r2 + height, c2 : c2 + width]
+        on_axis |= (centre >= a) & (centre >= b) & ((centre > a) | (centre > b))
+    return on_axis & (clearance > 0)
+
+
+def _turned(xy: NDArray, yaw: float) -> NDArray[np.float64]:
+    """Points (..., 2) turned by ``yaw`` about the origin."""
+    if yaw == 0.0:
+        return np.asarray(xy, dtype=np.float64).copy()
+    c, s = np.cos(yaw), np.sin(yaw)
+    x, y = xy[..., 0], xy[..., 1]
+    return np.stack([c * x - s * y, s * x + c * y], axis=-1)
 
 
 def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
@@ -386,7 +488,7 @@ def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
 
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
     stamp = np.zeros(union.cells.shape, np.uint8)
-    cells = union.frame.to_cell(xy)
+    cells = union.to_cell(xy)
     on_grid = inside(cells, stamp.shape)
     stamp[cells[on_grid, 0], cells[on_grid, 1]] = 1
     return stamp
