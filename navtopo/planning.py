@@ -168,6 +168,7 @@ class UnionGrid:
     yaw: float = 0.0  # the grid's axes in the location's frame: turned so that the walls run along them
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
     _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
+    _parts: dict[tuple[str, float, bool], NDArray[np.int32]] = field(default_factory=dict)
     _wall_distance: NDArray[np.float32] | None = None
 
     def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
@@ -211,6 +212,14 @@ class UnionGrid:
                     mask |= medial_axis(clearance) & grid_search.clear_of(clearance, medial, self.frame.resolution)
                 self._masks[key] = mask
         return self._masks[key]
+
+    def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.int32]:
+        """(H, W) labels of the connected parts of ``mask(kind, radius, medial)`` (0: not passable),
+        kept once made."""
+        key = (kind, radius, medial is not None)
+        if key not in self._parts:
+            self._parts[key] = _parts(self.mask(kind, radius, medial))
+        return self._parts[key]
 
     def _squared(self, kind: str) -> NDArray[np.uint8]:
         if kind not in self._clearance:
@@ -256,7 +265,7 @@ class UnionGrid:
 
     @property
     def nbytes(self) -> int:
-        parts = [*self._clearance.values(), *self._masks.values()]
+        parts = [*self._clearance.values(), *self._masks.values(), *self._parts.values()]
         total = self.cells.nbytes + sum(part.nbytes for part in parts)
         return int(total + (self._wall_distance.nbytes if self._wall_distance is not None else 0))
 
@@ -406,10 +415,13 @@ class LocalPlanner:
 
     def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
-        if there is none, or only one through unknown cells far round (``unknown_detour``)."""
-        snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
-        masks = lambda level: _passable(union, *self.levels[level], blocked_xy=blocked_xy)  # noqa: E731
+        if there is none, or only one through unknown cells far round (``unknown_detour``).
 
+        The levels are tried in order (``navkit.grid_planning.plan_path`` on each): a level whose
+        snapped start and goal lie in different parts of its passable cells (4-connected, as the
+        search moves: no corner cut) is passed over without a search, which would visit every cell
+        it can reach before it gave up (tens of milliseconds on a union grid's unknown levels)."""
+        snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
         # a target the robot does not fit at even next to unknown space (a goal estimated into a
         # wall) is approached as near as the free space allows, never driven into
         target = np.asarray(target, dtype=np.float64)[:2]
@@ -417,7 +429,21 @@ class LocalPlanner:
             self.medial is not None and union.fits(target, "unknown", self.medial)
         )
         ends = union.to_grid_axes(np.vstack([start[None, :2], target[None]]))
-        planned = plan_path(masks, union.frame, ends[0], ends[1], snap, levels=len(self.levels), exact_goal=fits)
+        end_cells = union.frame.to_cell(ends)
+        planned = None
+        for level, (kind, radius, medial) in enumerate(self.levels):
+            passable = _passable(union, kind, radius, medial, blocked_xy)
+            start_cell = grid_search.nearest_free(passable, end_cells[0], snap)
+            goal_cell = grid_search.nearest_free(passable, end_cells[1], snap)
+            if start_cell is None or goal_cell is None:
+                continue
+            parts = union.parts(kind, radius, medial) if blocked_xy is None or not len(blocked_xy) else _parts(passable)
+            if parts[start_cell] != parts[goal_cell]:
+                continue
+            found = plan_path([passable], union.frame, ends[0], ends[1], snap, exact_goal=fits)
+            if found is not None:
+                planned = PlannedPath(found.points, level)
+                break
         if planned is None:
             return None
         if self.levels[planned.level][0] == "unknown":
@@ -449,6 +475,13 @@ def _passable(
         return union.mask(kind, radius, medial)
     blocked = cv2.dilate(_stamp(union, np.asarray(blocked_xy)[:, :2]), _disk(radius, union.frame.resolution)) > 0
     return union.mask(kind, radius, medial) & ~blocked
+
+
+def _parts(passable: NDArray[np.bool_]) -> NDArray[np.int32]:
+    """Labels of the 4-connected parts of a passable mask: the cells one search can reach from
+    another (``navkit.grid_search`` moves diagonally only between two free cells)."""
+    _, labels = cv2.connectedComponents(passable.view(np.uint8), connectivity=4)
+    return np.asarray(labels, dtype=np.int32)
 
 
 def medial_axis(squared: NDArray) -> NDArray[np.bool_]:
