@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.follower import PathFollower
-from navkit.geometry import between, compose, inverse, transform_points
+from navkit.geometry import between, compose, distance_to_polyline, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
@@ -48,7 +48,17 @@ from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.local_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.mapping import GraphMaintainer
-from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
+from navtopo.planning import (
+    GlobalPlanner,
+    LocalPlanner,
+    Passage,
+    UnionGrids,
+    fit_passage,
+    moved_passage,
+    narrow_part,
+    path_positions,
+    shifted_path,
+)
 from navtopo.scan_matching import prepare
 from navtopo.startup import Explorer, Hypothesis, Localization, Startup
 
@@ -66,6 +76,14 @@ class NavigationConfig(BaseModel):
     block_check_distance: float = Field(4.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block the path")
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
+    passage_check_range: float = Field(
+        3.0,
+        ge=0,
+        description="m along the path: a narrow passage (a path found on a medial level) this near ahead is checked "
+        "against the scan's returns, moved sideways to their middle or, if the robot does not fit, blocked (0: never)",
+    )
+    passage_margin: float = Field(0.02, ge=0, description="m beyond the robot radius the scan must leave in a passage")
+    passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
 
 
 def goal_in_graph(
@@ -142,6 +160,7 @@ class Navigator:
     _last_odom: NDArray[np.float64] | None = None
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
+    _passage: Passage | None = None  # the narrow part of the path being followed, to check against the scan
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -161,6 +180,8 @@ class Navigator:
                 "explore_moves",
                 "explore_blocked",
                 "tentative_blocked",
+                "passages_centred",
+                "passages_blocked",
             ],
             0,
         )
@@ -181,6 +202,7 @@ class Navigator:
         self._tentative = None
         self._odometer, self._last_odom, self._lost_since = 0.0, None, None
         self._removed = {}
+        self._passage = None
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -296,6 +318,8 @@ class Navigator:
         if self._needs_plan(obs, vertex, pose):
             if not self._plan(obs, vertex, pose, tentative):
                 return Command()
+        if self._passage is not None and not self._check_passage(obs, pose):
+            return Command()  # the passage is shut to the robot: plan again at the next tick
         if not tentative and self._stuck(obs, pose):
             return Command()
         command = self.follower.command(pose)
@@ -389,6 +413,8 @@ class Navigator:
         self._target_is_goal = bool(np.allclose(target, goal_point[0]))
         self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
+        kind, radius, medial = self.local.levels[planned.level]
+        self._passage = None if medial is None else narrow_part(union.mask(kind, radius), union, self.follower.path)
         if not tentative:
             self._describe(self._following(route))
         return True
@@ -403,6 +429,49 @@ class Navigator:
     def _at_path_end(self) -> bool:
         """The local path has been driven to its end short of the goal: the maintainer must look now."""
         return bool(self.follower.has_path and self.follower.reached and not self._target_is_goal)
+
+    def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
+        """A narrow passage of the path (``planning.Passage``) within ``passage_check_range`` ahead,
+        against the scan's obstacle returns (exact, where the map has them to a cell): the passage
+        moves sideways to the middle of what the scan sees (``planning.fit_passage``) or, if the scan
+        leaves the robot less than ``passage_margin`` a side there, its returns there become obstacles
+        and the path is dropped (False: plan again). True: follow on."""
+        passage, follower, config = self._passage, self.follower, self.config
+        assert passage is not None
+        progress = follower.progress
+        if progress > passage.exit_arc or config.passage_check_range <= 0:
+            self._passage = None if progress > passage.exit_arc else passage
+            return True
+        if passage.entry_arc - progress > config.passage_check_range:
+            return True
+        points = obstacle_points(obs.points, self.maintainer.grid_config)
+        reach = config.passage_check_range + 2.0
+        near = np.asarray(points[np.hypot(points[:, 0], points[:, 1]) <= reach, :2], dtype=np.float64)
+        returns = transform_points(pose, near)
+        lead = 0.5
+        centre = (passage.entry + passage.exit) / 2
+        span = float(np.hypot(*(passage.exit - passage.entry))) / 2 + lead + self.robot_radius + config.passage_max_shift
+        returns = returns[np.hypot(*(returns - centre).T) <= span]
+        if not len(returns):
+            return True
+        path = follower.path
+        offset, clearance = fit_passage(path, passage, returns, lead, config.passage_max_shift)
+        need = self.robot_radius + config.passage_margin
+        if clearance < need:
+            # the robot does not fit where the map showed a passage (narrower than the map's cells
+            # showed it, or the pose off by more than a side's room): shut it
+            moved = shifted_path(path, passage, offset, lead)
+            self.obstacles.mark(returns[distance_to_polyline(returns, moved) < need])
+            self.counters["passages_blocked"] += 1
+            self._passage = None
+            self._path_vertex = None
+            self.follower.clear()
+            return False
+        if float(np.hypot(*offset)) >= 0.01:
+            moved, self._passage = moved_passage(path, passage, offset, progress, np.asarray(pose, dtype=np.float64)[:2])
+            follower.set_path(moved)
+            self.counters["passages_centred"] += 1
+        return True
 
     # -- new obstacles and progress ---------------------------------------------------------------------
 

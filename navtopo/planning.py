@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
-from navkit.geometry import compose, inverse, transform_points
+from navkit.geometry import compose, distance_to_polyline, inverse, transform_points
 from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
@@ -464,6 +464,103 @@ class LocalPlanner:
         xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
         far = union.values_at(xy, union.wall_distance, np.float32(np.inf)) > self.config.new_obstacle_distance
         return xy[far]
+
+
+# ---------------------------------------------------------------------------------------------
+# a narrow passage, checked against the scan
+
+
+@dataclass(frozen=True)
+class Passage:
+    """The narrow part of a local path found on a medial level (v_cur's frame): from the first to
+    the last of its points (every ``step`` along it) nearer the walls' cells than the margin rule
+    allows; ``entry_arc`` and ``exit_arc`` are their arc lengths along the path."""
+
+    entry: NDArray[np.float64]  # (2,)
+    exit: NDArray[np.float64]  # (2,)
+    entry_arc: float
+    exit_arc: float
+
+
+def narrow_part(mask: NDArray[np.bool_], union: UnionGrid, path: NDArray, step: float = 0.05) -> Passage | None:
+    """The first stretch of ``path`` (K, 2, v_cur's frame) whose points lie off ``mask`` (the level's
+    passable cells by the margin rule), or None."""
+    samples = _densify(path, step)  # on the path's segments: their arc lengths are the path's
+    sample_arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(samples, axis=0).T))])
+    narrow = ~union.values_at(samples, mask, True)
+    if not narrow.any():
+        return None
+    first = int(np.argmax(narrow))
+    wide_after = np.flatnonzero(~narrow[first:])
+    last = first + (int(wide_after[0]) - 1 if len(wide_after) else len(narrow) - 1 - first)
+    return Passage(samples[first].copy(), samples[last].copy(), float(sample_arcs[first]), float(sample_arcs[last]))
+
+
+def fit_passage(
+    path: NDArray, passage: Passage, returns: NDArray, lead: float = 0.5, max_shift: float = 0.3, shift_step: float = 0.01
+) -> tuple[NDArray[np.float64], float]:
+    """The passage moved sideways to where the scan leaves the robot most room: ``(offset (2,),
+    clearance)``, the offset (v_cur's frame, across the passage's direction, at most ``max_shift``,
+    the smallest of the best) and the least distance from ``returns`` (N, 2, the scan's obstacle
+    points in v_cur's frame) to the path from ``lead`` before the passage to ``lead`` after it with
+    its passage so moved (``shifted_path``). The walls a map's cells place within a cell of where
+    they are, and the robot's pose in the location, both move the path off a door's middle by a
+    few centimetres, where a door at the robot's width leaves it ten."""
+    direction = passage.exit - passage.entry
+    length = float(np.hypot(*direction))
+    if length < 1e-6:
+        arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+        ahead = _point_at(path, arcs, passage.exit_arc + 0.1) - _point_at(path, arcs, passage.entry_arc - 0.1)
+        direction, length = ahead, float(np.hypot(*ahead))
+    normal = np.array([-direction[1], direction[0]]) / max(length, 1e-9)
+    offsets = np.arange(-max_shift, max_shift + shift_step / 2, shift_step)
+    offsets = offsets[np.argsort(np.abs(offsets), kind="stable")]  # the smallest shift wins a tie
+    best, best_clearance = np.zeros(2), -np.inf
+    for offset in offsets:
+        moved = shifted_path(path, passage, offset * normal, lead)
+        clearance = float(distance_to_polyline(returns, moved).min()) if len(returns) else np.inf
+        if clearance > best_clearance + 1e-9:
+            best, best_clearance = offset * normal, clearance
+    return best, best_clearance
+
+
+def shifted_path(path: NDArray, passage: Passage, offset: NDArray, lead: float | None = None) -> NDArray[np.float64]:
+    """``path`` (K, 2) with its passage moved by ``offset`` (2,): the points between its entry and
+    exit replaced by the two moved ends; with ``lead``, only the stretch from ``lead`` before the
+    entry to ``lead`` after the exit."""
+    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    start = -np.inf if lead is None else passage.entry_arc - lead
+    end = np.inf if lead is None else passage.exit_arc + lead
+    before = path[(arcs > start) & (arcs < passage.entry_arc)]
+    after = path[(arcs > passage.exit_arc) & (arcs < end)]
+    parts = [before, (passage.entry + offset)[None], (passage.exit + offset)[None], after]
+    if lead is not None:
+        parts = [_point_at(path, arcs, max(start, 0.0))[None], *parts, _point_at(path, arcs, end)[None]]
+    return np.vstack(parts)
+
+
+def moved_passage(
+    path: NDArray, passage: Passage, offset: NDArray, progress: float, position: NDArray
+) -> tuple[NDArray[np.float64], Passage]:
+    """The path to follow from ``position`` (2,) on, the robot ``progress`` metres along ``path``
+    (K, 2), with the passage moved by ``offset`` (2,) (``shifted_path``), and the moved passage
+    along it (its entry at the robot if the robot is in it already)."""
+    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    before, after = arcs < passage.entry_arc, arcs > passage.exit_arc
+    points = np.vstack([path[before], (passage.entry + offset)[None], (passage.exit + offset)[None], path[after]])
+    along = np.concatenate([arcs[before], [passage.entry_arc, passage.exit_arc], arcs[after]])
+    keep = along > progress
+    moved = np.vstack([np.asarray(position, dtype=np.float64)[None, :2], points[keep]])
+    moved_arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(moved, axis=0).T))])
+    exit_index = 1 + int(np.count_nonzero(keep[: int(before.sum()) + 2])) - 1
+    entry_index = exit_index - 1 if keep[int(before.sum())] else 0
+    entry = moved[entry_index].copy()
+    return moved, Passage(entry, moved[exit_index].copy(), float(moved_arcs[entry_index]), float(moved_arcs[exit_index]))
+
+
+def _point_at(path: NDArray, arcs: NDArray, arc: float) -> NDArray[np.float64]:
+    """The point of ``path`` (K, 2) at arc length ``arc`` (clamped)."""
+    return np.array([np.interp(arc, arcs, path[:, 0]), np.interp(arc, arcs, path[:, 1])])
 
 
 def _passable(
