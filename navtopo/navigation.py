@@ -65,6 +65,9 @@ from navtopo.startup import Explorer, Hypothesis, Localization, Startup
 #: metres of odometry alone (every update "lost": outside every location's reach, none verified)
 #: after which the navigator says it is lost (stage ``localization``); a diagnosis, no behaviour
 LOST_AFTER_M = 2.0
+#: metres of the path before and after a narrow passage checked with it against the scan (the way in
+#: and out: a line through a door that turns at its mouth comes near the jambs' corners)
+PASSAGE_LEAD = 0.5
 
 
 class NavigationConfig(BaseModel):
@@ -82,7 +85,16 @@ class NavigationConfig(BaseModel):
         description="m along the path: a narrow passage (a path found on a medial level) this near ahead is checked "
         "against the scan's returns, moved sideways to their middle or, if the robot does not fit, blocked (0: never)",
     )
-    passage_margin: float = Field(0.02, ge=0, description="m beyond the robot radius the scan must leave in a passage")
+    passage_margin: float = Field(
+        0.04,
+        ge=0,
+        description="m beyond the robot radius the scan must leave in a passage (its returns sample a jamb's corner "
+        "a few centimetres apart)",
+    )
+    passage_block_range: float = Field(
+        1.5, ge=0, description="m along the path: a passage this near is shut if the robot does not fit"
+    )
+    passage_check_period: float = Field(0.2, ge=0, description="s of simulated time between checks of a passage")
     passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
 
 
@@ -161,6 +173,7 @@ class Navigator:
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
     _passage: Passage | None = None  # the narrow part of the path being followed, to check against the scan
+    _passage_checked: float = -np.inf  # when it was last
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -203,6 +216,7 @@ class Navigator:
         self._odometer, self._last_odom, self._lost_since = 0.0, None, None
         self._removed = {}
         self._passage = None
+        self._passage_checked = -np.inf
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -432,46 +446,55 @@ class Navigator:
 
     def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
         """A narrow passage of the path (``planning.Passage``) within ``passage_check_range`` ahead,
-        against the scan's obstacle returns (exact, where the map has them to a cell): the passage
-        moves sideways to the middle of what the scan sees (``planning.fit_passage``) or, if the scan
-        leaves the robot less than ``passage_margin`` a side there, its returns there become obstacles
-        and the path is dropped (False: plan again). True: follow on."""
+        against the scan's obstacle returns (exact, where the map has them to a cell; every
+        ``passage_check_period``): its ends move to where the scan leaves the robot most room
+        (``planning.fit_passage``) or, if that is less than ``passage_margin`` a side with the passage
+        within ``passage_block_range``, its returns there become obstacles and the path is dropped
+        (False: plan again). True: follow on."""
         passage, follower, config = self._passage, self.follower, self.config
         assert passage is not None
         progress = follower.progress
         if progress > passage.exit_arc or config.passage_check_range <= 0:
-            self._passage = None if progress > passage.exit_arc else passage
+            self._passage = None
             return True
-        if passage.entry_arc - progress > config.passage_check_range:
+        if (
+            passage.entry_arc - progress > config.passage_check_range
+            or obs.stamp - self._passage_checked < config.passage_check_period
+        ):
             return True
-        points = obstacle_points(obs.points, self.maintainer.grid_config)
-        reach = config.passage_check_range + 2.0
-        near = np.asarray(points[np.hypot(points[:, 0], points[:, 1]) <= reach, :2], dtype=np.float64)
-        returns = transform_points(pose, near)
-        lead = 0.5
-        centre = (passage.entry + passage.exit) / 2
-        span = float(np.hypot(*(passage.exit - passage.entry))) / 2 + lead + self.robot_radius + config.passage_max_shift
-        returns = returns[np.hypot(*(returns - centre).T) <= span]
+        self._passage_checked = obs.stamp
+        returns = self._returns_near(obs, pose, np.vstack([passage.entry, passage.exit]), PASSAGE_LEAD + config.passage_max_shift)
         if not len(returns):
             return True
         path = follower.path
-        offset, clearance = fit_passage(path, passage, returns, lead, config.passage_max_shift)
+        # the way ahead, not where the robot is: from a radius on (a robot beside a jamb in the
+        # doorway is past the choice)
+        ahead = progress + self.robot_radius
+        moves, clearance = fit_passage(path, passage, returns, PASSAGE_LEAD, config.passage_max_shift, from_arc=ahead)
         need = self.robot_radius + config.passage_margin
-        if clearance < need:
+        if clearance < need and 0 < passage.entry_arc - progress <= config.passage_block_range:
             # the robot does not fit where the map showed a passage (narrower than the map's cells
             # showed it, or the pose off by more than a side's room): shut it
-            moved = shifted_path(path, passage, offset, lead)
+            moved = shifted_path(path, passage, moves)
             self.obstacles.mark(returns[distance_to_polyline(returns, moved) < need])
             self.counters["passages_blocked"] += 1
             self._passage = None
             self._path_vertex = None
             self.follower.clear()
             return False
-        if float(np.hypot(*offset)) >= 0.01:
-            moved, self._passage = moved_passage(path, passage, offset, progress, np.asarray(pose, dtype=np.float64)[:2])
+        if clearance >= need and float(np.abs(moves).max()) >= 0.01:
+            moved, self._passage = moved_passage(path, passage, moves, progress, np.asarray(pose, dtype=np.float64)[:2])
             follower.set_path(moved)
             self.counters["passages_centred"] += 1
         return True
+
+    def _returns_near(self, obs: Observation, pose: NDArray, segment: NDArray, reach: float) -> NDArray[np.float64]:
+        """The scan's obstacle returns (v_cur's frame, one a centimetre cell) within ``reach`` plus the
+        robot radius of ``segment`` (2, 2)."""
+        points = np.asarray(obstacle_points(obs.points, self.maintainer.grid_config)[:, :2], dtype=np.float64)
+        returns = transform_points(pose, points)
+        returns = returns[distance_to_polyline(returns, segment) <= reach + self.robot_radius]
+        return np.unique(np.round(returns / 0.01), axis=0) * 0.01
 
     # -- new obstacles and progress ---------------------------------------------------------------------
 
