@@ -94,6 +94,18 @@ class GridFrame:
         return (float(x0), float(y0), float(x0 + shape[1] * self.resolution), float(y0 + shape[0] * self.resolution))
 
 
+def largest_component(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The largest 8-connected piece of ``mask`` (all of it if it has one piece or none)."""
+    from scipy import ndimage
+
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    if count <= 1:
+        return mask
+    sizes = np.bincount(labels.ravel())
+    sizes[0] = 0
+    return labels == int(np.argmax(sizes))
+
+
 def inside(cells: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.bool_]:
     """Which cells (..., 2) [row, col] lie in a raster of ``shape`` (H, W)."""
     cells = np.asarray(cells)

@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-from navkit.raster import FREE, OCCUPIED, UNKNOWN
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, largest_component
 
 EIGHT = np.ones((3, 3), bool)
 SmallObstacles = Literal["remove", "grow", "keep"]
@@ -195,16 +195,6 @@ def laser_fans(cells: NDArray[np.uint8], radius_px: float) -> int:
     fans = reaching[labels]
     cells[fans] = UNKNOWN
     return int(fans.sum())
-
-
-def largest_component(free: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """The largest 8-connected piece of ``free`` (all of it if it has one piece or none)."""
-    labels, count = ndimage.label(free, structure=EIGHT)
-    if count <= 1:
-        return free
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    return labels == int(np.argmax(sizes))
 
 
 def import_map(cells: NDArray[np.uint8], resolution: float, rules: ImportRules) -> tuple[NDArray[np.bool_], MapImport]:

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 from skimage.morphology import skeletonize
 
+from navkit.raster import largest_component
 from scenarios.route_space import PASS_MARGIN_M, ROUTE_MARGIN_M, RouteSpace
 from scenarios.world import World
 
@@ -88,15 +89,6 @@ def _prune_spurs(skeleton: NDArray[np.bool_], max_cells: int, clear: NDArray, cl
                     skeleton[cell] = False
         skeleton = skeletonize(skeleton)
     return skeleton
-
-
-def _largest(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    labels, count = ndimage.label(mask, structure=EIGHT)
-    if count <= 1:
-        return mask
-    sizes = np.bincount(labels.ravel())
-    sizes[0] = 0
-    return labels == int(np.argmax(sizes))
 
 
 class _Sets:
@@ -278,21 +270,21 @@ def _peel_tips(skeleton: NDArray[np.bool_], tight: NDArray[np.bool_], seeds: NDA
 def route_skeleton(world: World, space: RouteSpace) -> NDArray[np.bool_]:
     """The skeleton a generated route tours (steps 1 and 2 of the module docstring)."""
     clear = world.clearance
-    fit = _largest(space.fit)
+    fit = largest_component(space.fit)
     skeleton = skeletonize(fit)
     if not skeleton.any():
         raise ValueError("free space too narrow for the robot: empty skeleton")
     roomy_from = space.radius + ROUTE_MARGIN_M
     kept = _keep_connecting_passages(skeleton, clear, roomy_from, world.resolution)
     if (kept & (clear >= roomy_from)).any():
-        kept = _peel_tips(_largest(kept), kept & (clear < roomy_from))
+        kept = _peel_tips(largest_component(kept), kept & (clear < roomy_from))
     else:  # nothing roomy: at least keep dead ends off their walls
         peeled = _peel_tips(kept, kept & (clear < space.radius + PASS_MARGIN_M + 0.05))
         kept = peeled if peeled.any() else kept
-    kept = _largest(kept)
+    kept = largest_component(kept)
     kept = _open_small_loops(kept, world, clear, SMALL_OBSTACLE_M2)
     kept = _prune_spurs(kept, int(SPUR_LENGTH_M / world.resolution), clear, climb=space.radius)
-    return _largest(kept)
+    return largest_component(kept)
 
 
 def skeleton_walk(world: World, space: RouteSpace, rng: np.random.Generator) -> NDArray[np.float64]:

@@ -41,8 +41,7 @@ from skimage.draw import line as raster_line
 
 from navkit import raster
 from navkit.files import atomic_write
-from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
-from scenarios.map_import import largest_component
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, largest_component
 from scenarios.schema import parse_spec
 from scenarios.slam_doors import DOOR_CLEAR_M, Door, slam_doors
 from scenarios.world import shape_world
