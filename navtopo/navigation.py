@@ -301,6 +301,12 @@ class Navigator:
             )
         )
         self._path_vertex = None
+        # the obstacles remembered so far were placed by the hypotheses' poses (a wrong one, or
+        # the right place off by a few decimetres, puts a door's jambs into its opening, and a
+        # door's middle is rarely seen through again from afar: the door stays shut); the scans
+        # from the committed pose on mark what is there
+        self.obstacles.clear()
+        self._obstacle_vertex = None
         self.status = NavStatus(detail=f"localized in location {committed.vertex} after {startup.looks} looks")
         return self._drive(obs, committed.vertex, committed.pose)
 
