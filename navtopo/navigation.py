@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.follower import PathFollower, ProgressCheck
-from navkit.geometry import between, compose, inverse, transform_points
+from navkit.geometry import between, compose, distance_to_polyline, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
@@ -48,13 +48,26 @@ from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.local_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.mapping import GraphMaintainer
-from navtopo.planning import GlobalPlanner, LocalPlanner, UnionGrids, path_positions
+from navtopo.planning import (
+    GlobalPlanner,
+    LocalPlanner,
+    Passage,
+    UnionGrids,
+    fit_passage,
+    moved_passage,
+    narrow_part,
+    path_positions,
+    shifted_path,
+)
 from navtopo.scan_matching import prepare
 from navtopo.startup import Explorer, Hypothesis, Localization, Startup
 
 #: metres of odometry alone (every update "lost": outside every location's reach, none verified)
 #: after which the navigator says it is lost (stage ``localization``); a diagnosis, no behaviour
 LOST_AFTER_M = 2.0
+#: metres of the path before and after a narrow passage checked with it against the scan (the way in
+#: and out: a line through a door that turns at its mouth comes near the jambs' corners)
+PASSAGE_LEAD = 0.5
 
 
 class NavigationConfig(BaseModel):
@@ -66,6 +79,23 @@ class NavigationConfig(BaseModel):
     block_check_distance: float = Field(4.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block the path")
     replan_before_end: float = Field(1.5, gt=0, description="m: replan when the local path ends this close ahead")
+    passage_check_range: float = Field(
+        3.0,
+        ge=0,
+        description="m along the path: a narrow passage (a path found on a medial level) this near ahead is checked "
+        "against the scan's returns, moved sideways to their middle or, if the robot does not fit, blocked (0: never)",
+    )
+    passage_margin: float = Field(
+        0.04,
+        ge=0,
+        description="m beyond the robot radius the scan must leave in a passage (its returns sample a jamb's corner "
+        "a few centimetres apart)",
+    )
+    passage_block_range: float = Field(
+        1.5, ge=0, description="m along the path: a passage this near is shut if the robot does not fit"
+    )
+    passage_check_period: float = Field(0.2, ge=0, description="s of simulated time between checks of a passage")
+    passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
 
 
 def goal_in_graph(
@@ -143,6 +173,8 @@ class Navigator:
     _last_odom: NDArray[np.float64] | None = None
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
+    _passage: Passage | None = None  # the narrow part of the path being followed, to check against the scan
+    _passage_checked: float = -np.inf  # when it was last
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -162,6 +194,8 @@ class Navigator:
                 "explore_moves",
                 "explore_blocked",
                 "tentative_blocked",
+                "passages_centred",
+                "passages_blocked",
             ],
             0,
         )
@@ -182,6 +216,8 @@ class Navigator:
         self._tentative = None
         self._odometer, self._last_odom, self._lost_since = 0.0, None, None
         self._removed = {}
+        self._passage = None
+        self._passage_checked = -np.inf
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -266,6 +302,12 @@ class Navigator:
             )
         )
         self._path_vertex = None
+        # the obstacles remembered so far were placed by the hypotheses' poses (a wrong one, or
+        # the right place off by a few decimetres, puts a door's jambs into its opening, and a
+        # door's middle is rarely seen through again from afar: the door stays shut); the scans
+        # from the committed pose on mark what is there
+        self.obstacles.clear()
+        self._obstacle_vertex = None
         self.status = NavStatus(detail=f"localized in location {committed.vertex} after {startup.looks} looks")
         return self._drive(obs, committed.vertex, committed.pose)
 
@@ -297,6 +339,8 @@ class Navigator:
         if self._needs_plan(obs, vertex, pose):
             if not self._plan(obs, vertex, pose, tentative):
                 return Command()
+        if self._passage is not None and not self._check_passage(obs, pose):
+            return Command()  # the passage is shut to the robot: plan again at the next tick
         if not tentative and self._stuck(obs, pose):
             return Command()
         command = self.follower.command(pose)
@@ -390,6 +434,8 @@ class Navigator:
         self._target_is_goal = bool(np.allclose(target, goal_point[0]))
         self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
+        kind, radius, medial = self.local.levels[planned.level]
+        self._passage = None if medial is None else narrow_part(union.mask(kind, radius), union, self.follower.path)
         if not tentative:
             self._describe(self._following(route))
         return True
@@ -404,6 +450,58 @@ class Navigator:
     def _at_path_end(self) -> bool:
         """The local path has been driven to its end short of the goal: the maintainer must look now."""
         return bool(self.follower.has_path and self.follower.reached and not self._target_is_goal)
+
+    def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
+        """A narrow passage of the path (``planning.Passage``) within ``passage_check_range`` ahead,
+        against the scan's obstacle returns (exact, where the map has them to a cell; every
+        ``passage_check_period``): its ends move to where the scan leaves the robot most room
+        (``planning.fit_passage``) or, if that is less than ``passage_margin`` a side with the passage
+        within ``passage_block_range``, its returns there become obstacles and the path is dropped
+        (False: plan again). True: follow on."""
+        passage, follower, config = self._passage, self.follower, self.config
+        assert passage is not None
+        progress = follower.progress
+        if progress > passage.exit_arc or config.passage_check_range <= 0:
+            self._passage = None
+            return True
+        if (
+            passage.entry_arc - progress > config.passage_check_range
+            or obs.stamp - self._passage_checked < config.passage_check_period
+        ):
+            return True
+        self._passage_checked = obs.stamp
+        returns = self._returns_near(obs, pose, np.vstack([passage.entry, passage.exit]), PASSAGE_LEAD + config.passage_max_shift)
+        if not len(returns):
+            return True
+        path = follower.path
+        # the way ahead, not where the robot is: from a radius on (a robot beside a jamb in the
+        # doorway is past the choice)
+        ahead = progress + self.robot_radius
+        moves, clearance = fit_passage(path, passage, returns, PASSAGE_LEAD, config.passage_max_shift, from_arc=ahead)
+        need = self.robot_radius + config.passage_margin
+        if clearance < need and 0 < passage.entry_arc - progress <= config.passage_block_range:
+            # the robot does not fit where the map showed a passage (narrower than the map's cells
+            # showed it, or the pose off by more than a side's room): shut it
+            moved = shifted_path(path, passage, moves)
+            self.obstacles.mark(returns[distance_to_polyline(returns, moved) < need])
+            self.counters["passages_blocked"] += 1
+            self._passage = None
+            self._path_vertex = None
+            self.follower.clear()
+            return False
+        if clearance >= need and float(np.abs(moves).max()) >= 0.01:
+            moved, self._passage = moved_passage(path, passage, moves, progress, np.asarray(pose, dtype=np.float64)[:2])
+            follower.set_path(moved)
+            self.counters["passages_centred"] += 1
+        return True
+
+    def _returns_near(self, obs: Observation, pose: NDArray, segment: NDArray, reach: float) -> NDArray[np.float64]:
+        """The scan's obstacle returns (v_cur's frame, one a centimetre cell) within ``reach`` plus the
+        robot radius of ``segment`` (2, 2)."""
+        points = np.asarray(obstacle_points(obs.points, self.maintainer.grid_config)[:, :2], dtype=np.float64)
+        returns = transform_points(pose, points)
+        returns = returns[distance_to_polyline(returns, segment) <= reach + self.robot_radius]
+        return np.unique(np.round(returns / 0.01), axis=0) * 0.01
 
     # -- new obstacles and progress ---------------------------------------------------------------------
 

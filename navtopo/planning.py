@@ -35,11 +35,11 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
-from navkit.geometry import compose, inverse, transform_points
+from navkit.geometry import compose, distance_to_polyline, inverse, transform_points
 from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import GridConfig, warp_window, warped_bounds
+from navtopo.local_grid import CroppedGrid, GridConfig, mean_direction, wall_direction, warp_window, warped_bounds
 
 
 class PlanningConfig(BaseModel):
@@ -64,6 +64,18 @@ class PlanningConfig(BaseModel):
         "stops (a path out to a vertex and back, round a place the graph joins the long way)",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
+    align_walls: bool = Field(
+        True,
+        description="a union grid's axes turned along the walls of its locations (a door across whole rows or "
+        "columns of cells, not a staircase of them); False: the location's own axes",
+    )
+    medial_passages: bool = Field(
+        True,
+        description="when no path keeps the robot radius plus half a cell from every wall cell, a passage along "
+        "its medial axis at the radius plus medial_margin from the wall cells' centres (a door of the robot's width "
+        "and a little more whose jambs a scan drew a cell into it)",
+    )
+    medial_margin: float = Field(0.0, ge=0, description="m beyond the robot radius on a passage's medial axis")
     unknown_detour: float = Field(
         1.5,
         ge=1.0,
@@ -152,37 +164,73 @@ class UnionGrid:
 
     vertex: int
     cells: NDArray[np.uint8]  # (H, W) UNKNOWN / FREE / OCCUPIED
-    frame: GridFrame
+    frame: GridFrame  # of the cells in the grid's axes (``yaw``): points go through ``to_cell`` / ``to_point``
+    yaw: float = 0.0  # the grid's axes in the location's frame: turned so that the walls run along them
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
-    _masks: dict[tuple[str, float], NDArray[np.bool_]] = field(default_factory=dict)
+    _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
+    _parts: dict[tuple[str, float, bool], NDArray[np.int32]] = field(default_factory=dict)
     _wall_distance: NDArray[np.float32] | None = None
+
+    def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
+        """Points (N, 2+) of the location's frame -> cells (N, 2) [row, col] (no bounds check)."""
+        return self.frame.to_cell(_turned(np.asarray(xy, dtype=np.float64)[..., :2], -self.yaw))
+
+    def to_point(self, cells: NDArray) -> NDArray[np.float64]:
+        """Cells (N, 2) [row, col] -> their centres (N, 2) in the location's frame."""
+        return _turned(self.frame.to_world(cells), self.yaw)
+
+    def to_grid_axes(self, xy: NDArray) -> NDArray[np.float64]:
+        """Points (N, 2+) of the location's frame in the grid's axes (``frame``'s metres)."""
+        return _turned(np.asarray(xy, dtype=np.float64)[..., :2], -self.yaw)
+
+    def from_grid_axes(self, xy: NDArray) -> NDArray[np.float64]:
+        return _turned(np.asarray(xy, dtype=np.float64)[..., :2], self.yaw)
 
     def _free(self, kind: str, cells: NDArray[np.uint8] | None = None) -> NDArray[np.bool_]:
         cells = self.cells if cells is None else cells
         return cells == FREE if kind == "known" else cells != OCCUPIED
 
-    def mask(self, kind: str, radius: float) -> NDArray[np.bool_]:
+    def mask(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.bool_]:
         """Cells the robot's centre may take: known free (``known``) or not occupied (``unknown``), eroded
         by ``radius`` (``grid_search.inflate_free``), kept once made. One distance transform a kind
         serves every radius (a first plan asks for two: each its own transform was most of its time);
         it is kept as squared cells in 8 bits, capped at 255 (1.59 m at 0.1 m cells, beyond any
-        planning radius; a larger radius gets a transform of its own)."""
-        key = (kind, radius)
+        planning radius; a larger radius gets a transform of its own).
+
+        ``medial``: also the cells of the free space's medial axis (``medial_axis``) at least this far
+        from every non-free cell's centre: a passage too narrow for ``radius`` (a door of the robot's
+        width and a little more, its jambs a cell into it) passed along its middle."""
+        key = (kind, radius, medial is not None)
         if key not in self._masks:
             radius_cells = radius / self.frame.resolution
-            if radius_cells * radius_cells > CLEARANCE_CAP - 1:
+            if medial is None and radius_cells * radius_cells > CLEARANCE_CAP - 1:
                 self._masks[key] = grid_search.inflate_free(self._free(kind), radius, self.frame.resolution)
             else:
-                if kind not in self._clearance:
-                    squared = grid_search.clearance_squared(self._free(kind))
-                    self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
-                self._masks[key] = grid_search.clear_of(self._clearance[kind], radius, self.frame.resolution)
+                clearance = self._squared(kind)
+                mask = grid_search.clear_of(clearance, radius, self.frame.resolution)
+                if medial is not None:
+                    mask |= medial_axis(clearance) & grid_search.clear_of(clearance, medial, self.frame.resolution)
+                self._masks[key] = mask
         return self._masks[key]
+
+    def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.int32]:
+        """(H, W) labels of the connected parts of ``mask(kind, radius, medial)`` (0: not passable),
+        kept once made."""
+        key = (kind, radius, medial is not None)
+        if key not in self._parts:
+            self._parts[key] = _parts(self.mask(kind, radius, medial))
+        return self._parts[key]
+
+    def _squared(self, kind: str) -> NDArray[np.uint8]:
+        if kind not in self._clearance:
+            squared = grid_search.clearance_squared(self._free(kind))
+            self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
+        return self._clearance[kind]
 
     def fits(self, xy: NDArray, kind: str, radius: float) -> bool:
         """``mask(kind, radius)`` at the point (2,) (True off the grid), from the cells round it
         alone: no transform of the whole grid for one cell."""
-        cell = self.frame.to_cell(np.asarray(xy, dtype=np.float64)[None, :2])[0]
+        cell = self.to_cell(np.asarray(xy, dtype=np.float64)[None, :2])[0]
         height, width = self.cells.shape
         if not (0 <= cell[0] < height and 0 <= cell[1] < width):
             return True
@@ -209,7 +257,7 @@ class UnionGrid:
 
     def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
-        cells = self.frame.to_cell(xy)
+        cells = self.to_cell(xy)
         on_grid = inside(cells, array.shape)
         out = np.full(len(cells), outside, dtype=array.dtype)
         out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
@@ -217,22 +265,28 @@ class UnionGrid:
 
     @property
     def nbytes(self) -> int:
-        parts = [*self._clearance.values(), *self._masks.values()]
+        parts = [*self._clearance.values(), *self._masks.values(), *self._parts.values()]
         total = self.cells.nbytes + sum(part.nbytes for part in parts)
         return int(total + (self._wall_distance.nbytes if self._wall_distance is not None else 0))
 
 
-def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConfig, radius: float) -> UnionGrid:
-    """``vertex``'s grid and its neighbours', warped into its frame by the edges (see the module docstring)."""
+def build_union_grid(
+    graph: TopologicalGraph, vertex: int, grid_config: GridConfig, radius: float, align: bool = True
+) -> UnionGrid:
+    """``vertex``'s grid and its neighbours', warped into its frame by the edges (see the module
+    docstring); with ``align``, into its frame turned so that the walls run along the grid's axes."""
     size = 2 * int(round(radius / grid_config.resolution))
     res = grid_config.resolution
-    # warp(grid, T) is the grid seen from frame T given in the grid's own frame: ``vertex``'s
-    # origin lies at inverse(T_vertex_member) in ``member``'s frame
-    members = [(graph.vertices[m].grid, inverse(pose)) for m, pose in [(vertex, np.zeros(3)), *graph.neighbours(vertex)]]
+    placed = [(graph.vertices[m].grid, pose) for m, pose in [(vertex, np.zeros(3)), *graph.neighbours(vertex)]]
+    yaw = union_yaw(placed) if align else 0.0
+    # warp(grid, T) is the grid seen from frame T given in the grid's own frame: the union's axes
+    # (``vertex``'s origin, turned by ``yaw``) lie at inverse(T_vertex_member) (0, 0, yaw) in ``member``'s frame
+    axes = np.array([0.0, 0.0, yaw])
+    members = [(grid, compose(inverse(pose), axes)) for grid, pose in placed]
     boxes = np.array([warped_bounds(grid, pose, res, size, margin=3) for grid, pose in members]).reshape(-1, 4)
     boxes = boxes[(boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])]
     if not len(boxes):
-        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res))
+        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res), yaw)
     # only the window that the members can reach is warped (a few hundred cells a side of the
     # canvas's 2 * radius / resolution): a location's union grid cost ~1.2 ms, now a few tenths
     window = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
@@ -243,7 +297,7 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
     known_rows = np.flatnonzero((cells != UNKNOWN).any(axis=1))
     known_cols = np.flatnonzero((cells != UNKNOWN).any(axis=0))
     if known_rows.size == 0:
-        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res))
+        return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res), yaw)
     r0 = max(window[0] + known_rows[0] - 2, 0) - window[0]
     r1 = min(window[0] + known_rows[-1] + 3, size) - window[0]
     c0 = max(window[2] + known_cols[0] - 2, 0) - window[2]
@@ -251,7 +305,18 @@ def build_union_grid(graph: TopologicalGraph, vertex: int, grid_config: GridConf
     # the corner of the kept part's first cell on the canvas centred on the vertex's observation point;
     # a map-style frame from there (floor((x - origin) / res)), as the union grids have always been read
     origin = np.array([(window[2] + c0 - size // 2) * res, (window[0] + r0 - size // 2) * res])
-    return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res))
+    return UnionGrid(vertex, np.ascontiguousarray(cells[r0:r1, c0:c1]), GridFrame(origin, res), yaw)
+
+
+def union_yaw(placed: list[tuple[CroppedGrid, NDArray[np.float64]]]) -> float:
+    """The yaw (radians, in [-45°, 45°)) that turns a location's frame so that the walls of the
+    grids ``placed`` (each with its pose in that frame) run along its axes
+    (``local_grid.wall_direction``): a door or a corridor then crosses whole rows or columns of
+    cells, where at a slant its jambs' cells stand in a staircase and the planner, which moves from
+    cell to cell without cutting corners, finds it a cell or so narrower."""
+    directions = [wall_direction(grid.cells) for grid, _ in placed]
+    angles = [angle + float(pose[2]) for (angle, _), (_, pose) in zip(directions, placed, strict=True)]
+    return mean_direction(angles, [weight for _, weight in directions])
 
 
 class UnionGrids:
@@ -272,7 +337,7 @@ class UnionGrids:
         union = self._cache.get(vertex)
         if union is None:
             started = time.perf_counter()
-            union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius)
+            union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls)
             self._build_ms += (time.perf_counter() - started) * 1e3
             self._cache[vertex] = union
             if len(self._cache) > self.config.union_cache:
@@ -310,7 +375,13 @@ class LocalPlanner:
         resolution = grids.grid_config.resolution
         self.wide = robot_radius + resolution / 2 + config.inflation_margin
         self.tight = robot_radius + resolution / 2
-        self.levels = [("known", self.wide), ("known", self.tight), ("unknown", self.wide), ("unknown", self.tight)]
+        # the fallbacks in order: known free space with the margin, without; then a narrow passage
+        # along its middle (``UnionGrid.mask``'s medial); then the same with unknown cells as free
+        self.medial = robot_radius + config.medial_margin if config.medial_passages else None
+        steps: list[tuple[float, float | None]] = [(self.wide, None), (self.tight, None)]
+        if self.medial is not None:
+            steps.append((self.tight, self.medial))
+        self.levels: list[tuple[str, float, float | None]] = [(kind, r, m) for kind in ("known", "unknown") for r, m in steps]
 
     def target(
         self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None = None
@@ -326,7 +397,7 @@ class LocalPlanner:
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
         samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
         reach = self.wide + self.config.target_clearance
-        free = union.values_at(samples, _passable(union, "known", reach, blocked_xy), False)
+        free = union.values_at(samples, _passable(union, "known", reach, blocked_xy=blocked_xy), False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
         leaves = np.flatnonzero(~free[first:])
@@ -344,19 +415,46 @@ class LocalPlanner:
 
     def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
-        if there is none, or only one through unknown cells far round (``unknown_detour``)."""
-        snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
-        masks = lambda level: _passable(union, *self.levels[level], blocked_xy)  # noqa: E731
+        if there is none, or only one through unknown cells far round (``unknown_detour``).
 
+        The levels are tried in order (``navkit.grid_planning.plan_path`` on each): a level whose
+        snapped start and goal lie in different parts of its passable cells (4-connected, as the
+        search moves: no corner cut) is passed over without a search, which would visit every cell
+        it can reach before it gave up (tens of milliseconds on a union grid's unknown levels)."""
+        snap = int(np.ceil(self.config.snap_radius / union.frame.resolution))
         # a target the robot does not fit at even next to unknown space (a goal estimated into a
         # wall) is approached as near as the free space allows, never driven into
-        fits = union.fits(np.asarray(target, dtype=np.float64), "unknown", self.tight)
-        planned = plan_path(masks, union.frame, start[:2], target, snap, levels=len(self.levels), exact_goal=fits)
-        if planned is not None and self.levels[planned.level][0] == "unknown":
-            straight = float(np.hypot(*(np.asarray(target, dtype=np.float64)[:2] - start[:2])))
+        target = np.asarray(target, dtype=np.float64)[:2]
+        fits = union.fits(target, "unknown", self.tight) or (
+            self.medial is not None and union.fits(target, "unknown", self.medial)
+        )
+        ends = union.to_grid_axes(np.vstack([start[None, :2], target[None]]))
+        end_cells = union.frame.to_cell(ends)
+        planned = None
+        for level, (kind, radius, medial) in enumerate(self.levels):
+            passable = _passable(union, kind, radius, medial, blocked_xy)
+            start_cell = grid_search.nearest_free(passable, end_cells[0], snap)
+            goal_cell = grid_search.nearest_free(passable, end_cells[1], snap)
+            if start_cell is None or goal_cell is None:
+                continue
+            parts = union.parts(kind, radius, medial) if blocked_xy is None or not len(blocked_xy) else _parts(passable)
+            if parts[start_cell] != parts[goal_cell]:
+                continue
+            found = plan_path([passable], union.frame, ends[0], ends[1], snap, exact_goal=fits)
+            if found is not None:
+                planned = PlannedPath(found.points, level)
+                break
+        if planned is None:
+            return None
+        if self.levels[planned.level][0] == "unknown":
+            straight = float(np.hypot(*(target - start[:2])))
             if planned.length > self.config.unknown_detour * straight + 1.0:
                 return None
-        return planned
+        points = union.from_grid_axes(planned.points)
+        points[0] = start[:2]  # exact, not turned there and back
+        if fits:
+            points[-1] = target
+        return PlannedPath(points, planned.level)
 
     def new_obstacles(self, union: UnionGrid, pose: NDArray, points: NDArray) -> NDArray[np.float64]:
         """Obstacle returns (N, 2+, robot frame) near the robot that no mapped wall explains, in v_cur's frame."""
@@ -368,12 +466,188 @@ class LocalPlanner:
         return xy[far]
 
 
-def _passable(union: UnionGrid, kind: str, radius: float, blocked_xy: NDArray | None) -> NDArray[np.bool_]:
-    """The union grid's cached ``mask(kind, radius)``, with new obstacles (N, 2+) blocked as far."""
+# ---------------------------------------------------------------------------------------------
+# a narrow passage, checked against the scan
+
+
+@dataclass(frozen=True)
+class Passage:
+    """The narrow part of a local path found on a medial level (v_cur's frame): from the first to
+    the last of its points (every ``step`` along it) nearer the walls' cells than the margin rule
+    allows; ``entry_arc`` and ``exit_arc`` are their arc lengths along the path."""
+
+    entry: NDArray[np.float64]  # (2,)
+    exit: NDArray[np.float64]  # (2,)
+    entry_arc: float
+    exit_arc: float
+
+
+def narrow_part(
+    mask: NDArray[np.bool_], union: UnionGrid, path: NDArray, extend: float = 0.25, longest: float = 1.5, step: float = 0.05
+) -> Passage | None:
+    """The first stretch of ``path`` (K, 2, v_cur's frame) whose points lie off ``mask`` (the level's
+    passable cells by the margin rule), ``extend`` longer at each end (a door's mouth, where the
+    way in bends toward its axis); None if there is none, or if it is longer than ``longest`` (a
+    narrow corridor, not a door: no straight line through it stands for the path)."""
+    samples = _densify(path, step)  # on the path's segments: their arc lengths are the path's
+    sample_arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(samples, axis=0).T))])
+    narrow = ~union.values_at(samples, mask, True)
+    if not narrow.any():
+        return None
+    first = int(np.argmax(narrow))
+    wide_after = np.flatnonzero(~narrow[first:])
+    last = first + (int(wide_after[0]) - 1 if len(wide_after) else len(narrow) - 1 - first)
+    entry_arc = max(float(sample_arcs[first]) - extend, 0.0)
+    exit_arc = min(float(sample_arcs[last]) + extend, float(sample_arcs[-1]))
+    if exit_arc - entry_arc > longest:
+        return None
+    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    return Passage(_point_at(path, arcs, entry_arc), _point_at(path, arcs, exit_arc), entry_arc, exit_arc)
+
+
+def fit_passage(
+    path: NDArray, passage: Passage, returns: NDArray, lead: float = 0.5, max_shift: float = 0.3, from_arc: float = 0.0
+) -> tuple[NDArray[np.float64], float]:
+    """Where the scan leaves the robot most room through the passage: ``(moves (2, 2), clearance)``,
+    how far to move the passage's entry and its exit (v_cur's frame, each across the passage's
+    direction by at most ``max_shift``: so the line through it can turn to the door's axis as well
+    as move to its middle; the least moves among the best) and the least distance from ``returns``
+    (N, 2: the scan's obstacle points in v_cur's frame) to the path so moved, from ``lead`` before
+    the passage (not before ``from_arc``: where the robot is, plus a little, is no choice) to
+    ``lead`` after it. The walls a map's cells place within a cell of where they are, and the
+    robot's pose in its location, each move the path off a door's middle by a few centimetres,
+    where a door at the robot's width leaves it ten a side."""
+    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    direction = passage.exit - passage.entry
+    if float(np.hypot(*direction)) < 1e-6:
+        direction = _point_at(path, arcs, passage.exit_arc + 0.1) - _point_at(path, arcs, passage.entry_arc - 0.1)
+    normal = np.array([-direction[1], direction[0]]) / max(float(np.hypot(*direction)), 1e-9)
+    start, end = max(passage.entry_arc - lead, from_arc), passage.exit_arc + lead
+    inside = start >= passage.entry_arc  # in the passage already: the way on starts where the robot is
+    entry = _point_at(path, arcs, start) if inside else passage.entry
+    head = (
+        np.zeros((0, 2))
+        if inside
+        else np.vstack([_point_at(path, arcs, start), path[(arcs > start) & (arcs < passage.entry_arc)]])
+    )
+    tail = np.vstack([path[(arcs > passage.exit_arc) & (arcs < end)], _point_at(path, arcs, end)])
+    if not len(returns):
+        return np.zeros((2, 2)), float("inf")
+    fixed = float(distance_to_polyline(returns, tail).min())
+    if len(head) > 1:
+        fixed = min(fixed, float(distance_to_polyline(returns, head).min()))
+
+    def clearances(entry_shifts: NDArray, exit_shifts: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        d_in, d_out = (grid.ravel() for grid in np.meshgrid(entry_shifts, exit_shifts, indexing="ij"))
+        moved_in = entry[None] + d_in[:, None] * normal
+        moved_out = passage.exit[None] + d_out[:, None] * normal
+        nearest = _segment_distances(moved_in, moved_out, returns).min(axis=1)
+        nearest = np.minimum(nearest, _segment_distances(moved_out, np.repeat(tail[:1], len(d_out), 0), returns).min(axis=1))
+        if len(head):
+            nearest = np.minimum(nearest, _segment_distances(np.repeat(head[-1:], len(d_in), 0), moved_in, returns).min(axis=1))
+        return np.minimum(nearest, fixed), d_in, d_out
+
+    def best_of(entry_shifts: NDArray, exit_shifts: NDArray) -> tuple[float, float, float]:
+        values, d_in, d_out = clearances(entry_shifts, exit_shifts)
+        k = int(np.argmax(values - 1e-4 * (np.abs(d_in) + np.abs(d_out))))  # the least moves among the best
+        return float(values[k]), float(d_in[k]), float(d_out[k])
+
+    # coarse, then fine round the best: 13 x 13 and 9 x 9 moves, not 61 x 61
+    coarse = np.linspace(-max_shift, max_shift, 13)
+    _, d_in, d_out = best_of(np.zeros(1) if inside else coarse, coarse)
+    step = max_shift / 6
+    fine = np.linspace(-step, step, 9)
+    in_shifts = np.zeros(1) if inside else np.clip(d_in + fine, -max_shift, max_shift)
+    clearance, d_in, d_out = best_of(in_shifts, np.clip(d_out + fine, -max_shift, max_shift))
+    return np.array([d_in * normal, d_out * normal]), clearance
+
+
+def shifted_path(path: NDArray, passage: Passage, moves: NDArray) -> NDArray[np.float64]:
+    """``path`` (K, 2) with its passage's entry and exit moved by ``moves`` (2, 2) and the points
+    between them left out."""
+    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    ends = np.vstack([passage.entry + moves[0], passage.exit + moves[1]])
+    return np.vstack([path[arcs < passage.entry_arc], ends, path[arcs > passage.exit_arc]])
+
+
+def moved_passage(
+    path: NDArray, passage: Passage, moves: NDArray, progress: float, position: NDArray
+) -> tuple[NDArray[np.float64], Passage]:
+    """The path to follow from ``position`` (2,) on, the robot ``progress`` metres along ``path``
+    (K, 2), with the passage's ends moved by ``moves`` (2, 2) (``shifted_path``), and the moved
+    passage along it (its entry at the robot if the robot is in it already)."""
+    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    before, after = arcs < passage.entry_arc, arcs > passage.exit_arc
+    ends = np.vstack([passage.entry + moves[0], passage.exit + moves[1]])
+    points = np.vstack([path[before], ends, path[after]])
+    along = np.concatenate([arcs[before], [passage.entry_arc, passage.exit_arc], arcs[after]])
+    keep = along > progress
+    moved = np.vstack([np.asarray(position, dtype=np.float64)[None, :2], points[keep]])
+    moved_arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(moved, axis=0).T))])
+    exit_index = int(np.count_nonzero(keep[: int(before.sum()) + 2]))  # moved[0] is the robot
+    entry_index = exit_index - 1 if keep[int(before.sum())] else 0
+    return moved, Passage(
+        moved[entry_index].copy(), moved[exit_index].copy(), float(moved_arcs[entry_index]), float(moved_arcs[exit_index])
+    )
+
+
+def _segment_distances(starts: NDArray, ends: NDArray, points: NDArray) -> NDArray[np.float64]:
+    """(C, N) the distance from each of ``points`` (N, 2) to each segment ``starts`` (C, 2) -> ``ends`` (C, 2)."""
+    vectors = ends - starts
+    lengths2 = np.maximum((vectors**2).sum(axis=1), 1e-12)
+    rel = points[None, :, :] - starts[:, None, :]
+    along = np.clip((rel * vectors[:, None, :]).sum(axis=2) / lengths2[:, None], 0.0, 1.0)
+    return np.hypot(*(rel - along[..., None] * vectors[:, None, :]).transpose(2, 0, 1))
+
+
+def _point_at(path: NDArray, arcs: NDArray, arc: float) -> NDArray[np.float64]:
+    """The point of ``path`` (K, 2) at arc length ``arc`` (clamped)."""
+    return np.array([np.interp(arc, arcs, path[:, 0]), np.interp(arc, arcs, path[:, 1])])
+
+
+def _passable(
+    union: UnionGrid, kind: str, radius: float, medial: float | None = None, blocked_xy: NDArray | None = None
+) -> NDArray[np.bool_]:
+    """The union grid's cached ``mask(kind, radius, medial)``, with new obstacles (N, 2+) blocked as
+    far as ``radius``."""
     if blocked_xy is None or not len(blocked_xy):
-        return union.mask(kind, radius)
+        return union.mask(kind, radius, medial)
     blocked = cv2.dilate(_stamp(union, np.asarray(blocked_xy)[:, :2]), _disk(radius, union.frame.resolution)) > 0
-    return union.mask(kind, radius) & ~blocked
+    return union.mask(kind, radius, medial) & ~blocked
+
+
+def _parts(passable: NDArray[np.bool_]) -> NDArray[np.int32]:
+    """Labels of the 4-connected parts of a passable mask: the cells one search can reach from
+    another (``navkit.grid_search`` moves diagonally only between two free cells)."""
+    _, labels = cv2.connectedComponents(passable.view(np.uint8), connectivity=4)
+    return np.asarray(labels, dtype=np.int32)
+
+
+def medial_axis(squared: NDArray) -> NDArray[np.bool_]:
+    """(H, W) the cells of a clearance raster (``grid_search.clearance_squared``, any monotone form)
+    on the medial axis of the free space: at least as clear as both neighbours on some line through
+    the cell (along a row, a column or a diagonal) and clearer than one of them. Across a passage
+    that is its middle cell, or its middle two; along a passage, where the clearance is level, no
+    cell counts by that line. Non-free cells (clearance 0) never count."""
+    clearance = np.asarray(squared).astype(np.int16)
+    padded = np.pad(clearance, 1, mode="constant", constant_values=0)
+    height, width = clearance.shape
+    centre = padded[1:-1, 1:-1]
+    on_axis = np.zeros(clearance.shape, bool)
+    for (r1, c1), (r2, c2) in (((0, 1), (2, 1)), ((1, 0), (1, 2)), ((0, 0), (2, 2)), ((0, 2), (2, 0))):
+        a = padded[r1 : r1 + height, c1 : c1 + width]
+        b = padded[r2 : r2 + height, c2 : c2 + width]
+        on_axis |= (centre >= a) & (centre >= b) & ((centre > a) | (centre > b))
+    return on_axis & (clearance > 0)
+
+
+def _turned(xy: NDArray, yaw: float) -> NDArray[np.float64]:
+    """Points (..., 2) turned by ``yaw`` about the origin."""
+    if yaw == 0.0:
+        return np.asarray(xy, dtype=np.float64).copy()
+    c, s = np.cos(yaw), np.sin(yaw)
+    x, y = xy[..., 0], xy[..., 1]
+    return np.stack([c * x - s * y, s * x + c * y], axis=-1)
 
 
 def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
@@ -386,7 +660,7 @@ def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
 
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
     stamp = np.zeros(union.cells.shape, np.uint8)
-    cells = union.frame.to_cell(xy)
+    cells = union.to_cell(xy)
     on_grid = inside(cells, stamp.shape)
     stamp[cells[on_grid, 0], cells[on_grid, 1]] = 1
     return stamp

@@ -73,17 +73,18 @@ def test_the_union_grid_of_two_locations_lines_up_with_ground_truth(tiny):
     graph = _graph([list(a), list(b)], [(0, 1)], [grid_a, grid_b])
     union = build_union_grid(graph, 0, GRID, radius=25.0)
     occupied = np.argwhere(union.cells == OCCUPIED)
-    world = se2.transform_points(a, union.frame.to_world(occupied))  # a's frame -> the scenario frame
+    world = se2.transform_points(a, union.to_point(occupied))  # the grid's axes -> a's frame -> the scenario frame
     walls = tiny.world.to_world(np.argwhere(~tiny.world.free))
     from scipy.spatial import cKDTree
 
     distance, _ = cKDTree(walls).query(world)
     assert np.mean(distance <= 0.15) >= 0.98, np.mean(distance <= 0.15)  # centres within 1.5 cells of GT walls
-    # b's walls, warped by the edge, fall on a's walls where both see them
-    b_only = build_union_grid(_graph([list(a), list(b)], [(0, 1)], [np.zeros_like(grid_a), grid_b]), 0, GRID, 25.0)
-    a_only = build_union_grid(_graph([list(a), list(b)], [(0, 1)], [grid_a, np.zeros_like(grid_b)]), 0, GRID, 25.0)
-    b_walls = b_only.frame.to_world(np.argwhere(b_only.cells == OCCUPIED))
-    a_walls = a_only.frame.to_world(np.argwhere(a_only.cells == OCCUPIED))
+    # b's walls, warped by the edge, fall on a's walls where both see them (in a's own axes: each
+    # alone would turn its grid by its own estimate of the walls' direction)
+    b_only = build_union_grid(_graph([list(a), list(b)], [(0, 1)], [np.zeros_like(grid_a), grid_b]), 0, GRID, 25.0, align=False)
+    a_only = build_union_grid(_graph([list(a), list(b)], [(0, 1)], [grid_a, np.zeros_like(grid_b)]), 0, GRID, 25.0, align=False)
+    b_walls = b_only.to_point(np.argwhere(b_only.cells == OCCUPIED))
+    a_walls = a_only.to_point(np.argwhere(a_only.cells == OCCUPIED))
     seen_by_a = a_only.values_at(b_walls, a_only.cells, UNKNOWN) != UNKNOWN
     near, _ = cKDTree(a_walls).query(b_walls[seen_by_a])
     assert seen_by_a.sum() > 100
@@ -340,6 +341,14 @@ def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     hits = nav.explorer.scan_on_path(obs, np.zeros(3))
     nav.obstacles.mark(hits)
     assert nav._path_blocked(np.zeros(3))
+
+    # they were placed by the hypothesis's pose (a wrong one puts a door's jambs into its opening):
+    # the start-up's commitment forgets them, and the scans from the committed pose mark anew
+    from types import SimpleNamespace
+
+    nav._drive = lambda *args, **kwargs: None  # the drive after the commitment is not this test's
+    nav._commit(obs, SimpleNamespace(vertex=0, pose=np.zeros(3)))
+    assert nav.localized and len(nav.obstacles) == 0 and not nav._path_blocked(np.zeros(3))
 
 
 def _startup(graph: TopologicalGraph, describe, **config):
