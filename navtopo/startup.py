@@ -227,6 +227,8 @@ class Startup:
         for h in self.hypotheses:
             h.tracker.localizer.strict = rivals
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
+            if not h.tracker.last_verified:
+                self._relocate(h, self._perceive(obs)[0], obs.odom)
         self._weigh()
         alone = len(self.hypotheses) == 1
         check_all = self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0
@@ -254,10 +256,7 @@ class Startup:
         """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
         matching; how many were added."""
         m = self.maintainer
-        if self._perceived is None or self._perceived[0] != obs.stamp:  # once a look, though asked twice
-            query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
-            self._perceived = (obs.stamp, query, self.describe(obs.points))
-        _, query, descriptor = self._perceived
+        query, descriptor = self._perceive(obs)
         if check_all:
             self._checked_at = self._odometer
             self.checks += 1
@@ -275,6 +274,35 @@ class Startup:
         for h in self.hypotheses if added else []:  # a new rival: nobody is alone; a first find: alone from now
             h.alone_since, h.alone_support = alone, 1 if alone is not None else 0
         return added
+
+    def _perceive(self, obs: Observation) -> tuple[PreparedGrid, NDArray[np.float32]]:
+        """The look's scan prepared for matching, and its descriptor (once a look, though asked twice)."""
+        m = self.maintainer
+        if self._perceived is None or self._perceived[0] != obs.stamp:
+            query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
+            self._perceived = (obs.stamp, query, self.describe(obs.points))
+        return self._perceived[1], self._perceived[2]
+
+    def _relocate(self, h: Hypothesis, query: PreparedGrid, odom: NDArray) -> bool:
+        """A hypothesis its tracker did not verify, checked again where it puts the robot: in its
+        location and the neighbouring ones, at the pose the edges predict, within
+        ``max_neighbour_jump``. A tracker keeps its location until the robot leaves its reach and may
+        refuse corrections there while the robot has crossed into the next one (out of a room into
+        the corridor): the hypothesis is a place, not the location it is kept in, and the right
+        place lost three looks that way while a look-alike's tracker crossed (on a generated wing,
+        a start-up committed 12.5 m off). Re-verified: tracked from that location on."""
+        graph, config = self.maintainer.graph, self.maintainer.config
+        candidates = [(h.vertex, np.zeros(3))] + graph.neighbours(h.vertex)
+        for vertex, pose_uv in candidates:
+            guess = between(pose_uv, h.pose)  # the robot in that location's frame, by the edge
+            if float(np.hypot(guess[0], guess[1])) > config.max_edge_length:
+                continue
+            located = h.tracker.localizer.verify(query, vertex, guess, config.max_neighbour_jump)
+            if located is not None:
+                h.tracker.start_at(vertex, located.pose, odom)
+                h.tracker.last_verified = True
+                return True
+        return False
 
     def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
         """Does (vertex, pose) put the robot where ``h`` does? Compared through the graph, or, for
