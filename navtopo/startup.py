@@ -123,7 +123,6 @@ class Hypothesis:
     places: set[int] = field(default_factory=set)  # the locations it was verified in
     alone_since: float | None = None  # the start-up odometer when its last rival fell (None: rivals live)
     alone_support: int = 0  # looks that verified it since then
-    found_at: int = -1  # the start-up's look that found it
 
     @property
     def vertex(self) -> int:
@@ -230,11 +229,10 @@ class Startup:
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
             if not h.tracker.last_verified:
                 self._relocate(h, self._perceive(obs)[0], obs.odom)
-        self._recognise(obs, check_all=False)  # before the weighing: a place recognised again is verified
         self._weigh()
         alone = len(self.hypotheses) == 1
-        if self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0:
-            self._recognise(obs, check_all=True)
+        check_all = self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0
+        self._recognise(obs, check_all)
 
     def _weigh(self) -> None:
         """This look's evidence: support for the hypotheses it verified; against the others only if
@@ -242,8 +240,6 @@ class Startup:
         verified = [h.tracker.last_verified for h in self.hypotheses]
         telling = any(verified)
         for h, ok in zip(self.hypotheses, verified, strict=True):
-            if h.found_at == self.looks:
-                continue  # found at this look
             if ok:
                 h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
                 h.places.add(h.vertex)
@@ -258,10 +254,7 @@ class Startup:
 
     def _recognise(self, obs: Observation, check_all: bool) -> int:
         """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
-        matching; how many were added. A verified candidate that puts the robot where a hypothesis
-        this look did not verify does is that hypothesis verified: it is tracked from the candidate's
-        location on (a map may hold the right place only in a location its tracker does not reach
-        from where it is kept, and the candidate is never a rival of the place it is)."""
+        matching; how many were added."""
         m = self.maintainer
         query, descriptor = self._perceive(obs)
         if check_all:
@@ -271,17 +264,10 @@ class Startup:
         found = m.localizer.localize(query, descriptor, top_k=top_k)
         added = 0
         for located in found:
-            same = [h for h in self.hypotheses if self._same_place(h, located.vertex, located.pose)]
-            for h in same:
-                if not h.tracker.last_verified:
-                    h.tracker.start_at(located.vertex, located.pose, obs.odom)
-                    h.tracker.last_verified = True
-            if not same:
+            if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 tracker.last_verified = True  # this look verified it
-                hypothesis = Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex})
-                hypothesis.found_at = self.looks  # counted at its find, not again when the look is weighed
-                self.hypotheses.append(hypothesis)
+                self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex}))
                 self.seen += 1
                 added += 1
         alone = self._odometer if len(self.hypotheses) == 1 else None

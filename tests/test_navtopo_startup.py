@@ -43,7 +43,6 @@ def _bookkeeping(count: int, **config) -> tuple[Startup, list[Hypothesis]]:
 def _look(startup: Startup, hypotheses: list[Hypothesis], verdicts: list[bool], moved: float = 0.25) -> None:
     """A look after ``moved`` metres that verifies ``hypotheses[k]`` iff ``verdicts[k]`` (dropped ones are not asked)."""
     startup._odometer += moved
-    startup.looks += 1
     for h, ok in zip(hypotheses, verdicts, strict=True):
         h.tracker.last_verified = ok
     startup._weigh()
