@@ -4,19 +4,40 @@ motion (Muravyev & Yakovlev, Sec. "Localization"; the confirmation goes beyond t
 Hypotheses (``Startup``). The robot is given no pose. Each *look* (after every 0.25 m or 15° of
 motion, the graph maintainer's cadence) retrieves the ``top_k`` locations whose descriptors are
 nearest to the scan's and verifies each by scan matching — every location instead at a look with no
-hypothesis and before a commitment (``check_all``: place recognition may rank the right place far
-down); a verified candidate that no live hypothesis explains becomes a hypothesis ``(vertex, pose)``,
-tracked from then on by odometry and scan matching like the robot itself (inside its location, or
-along an edge). A look that verifies a hypothesis supports it; two looks in a row that do not drop
-it; while rivals live, a look verifies only by the thresholds without a guess.
+hypothesis or one alone (at most once a metre), and before a commitment (``check_all``: place
+recognition may rank the right place far down); a verified candidate that no live hypothesis explains
+becomes a hypothesis ``(vertex, pose)``, tracked from then on by odometry and scan matching like the
+robot itself (inside its location, or along an edge). While rivals live, a look verifies only by
+the thresholds without a guess.
 
-The commitment rule. The robot commits to a hypothesis only when it is the one left, has been
-supported at ``confirm_looks`` looks, has survived ``confirm_distance`` metres of motion and has
-been verified in ``confirm_places`` locations (or survived ``confirm_distance_one_place`` metres):
-a wrong localization is worse than none (repeated rooms, symmetric corridors verify from one
-viewpoint, a room and its mirror image over metres of motion inside it; rarely across a door into
-the next location). Without a commitment after ``timeout`` seconds the trial fails with
-``not_localized``.
+Evidence against a hypothesis. A look that verifies a hypothesis supports it. A look that fails it
+counts against it only where it tells the hypotheses apart: some other hypothesis was verified at
+that look. A look that verifies none of them (turning on the spot, a scan the matcher cannot use)
+is no evidence for any place over another: it drops nobody, else the right place falls with the
+wrong ones and a look-alike the next look happens to verify is left alone (on a generated wing of
+identical rooms, 7 of 35 start-ups committed 3.6-14 m off that way). Each look against a hypothesis
+adds one to its count against, each look for it takes one off (never below zero): it is dropped
+when the count reaches ``drop_after``, or after ``drop_unverified`` looks in a row that did not
+verify it. A place the scan contradicts falls within ``drop_after`` looks; the right place,
+verified at most looks, and its exact look-alikes, verified as often, stay (dropped after a few
+looks in a row against it, the right place fell by chance among a dozen look-alikes while one of
+them stayed). A hypothesis alone is dropped only after ``drop_unverified`` looks (between
+locations, in a corridor that fixes the pose along it poorly, the matcher refuses looks in a row);
+meanwhile every location is checked once a metre, and a place verified elsewhere becomes a rival
+that the next looks weigh.
+
+The commitment rule, as a test. Commit to ``h`` only when all of these hold:
+  1. ``h`` is the only hypothesis left, and the look that commits verified it;
+  2. it has been verified at ``confirm_looks`` looks and survived ``confirm_distance`` metres, and
+     in ``confirm_places`` locations (or over ``confirm_distance_one_place`` metres): a room and its
+     mirror image agree from inside, the corridor outside the door tells them apart;
+  3. since its last rival fell it has been verified at ``confirm_alone_looks`` looks over
+     ``confirm_alone_distance`` metres (a rival dropped at one look may have been the right place:
+     place recognition and every location's check get the chance to find it again);
+  4. every location checked at this look (``check_all``) verifies nowhere farther than
+     ``same_place`` from ``h``.
+Else the robot keeps driving and looking; after ``timeout`` seconds without a commitment the trial
+fails with ``not_localized``: a wrong localization is worse than none.
 
 Moving meanwhile. The navigator (``navtopo.navigation``) drives toward the goal as the best
 hypothesis sees it (so confirmation costs no detour when the best is right), or, with no hypothesis
@@ -70,7 +91,18 @@ class StartupConfig(BaseModel):
     confirm_distance_one_place: float = Field(
         4.0, ge=0, description="... unless it has survived this many m of motion (a start and goal in one location)"
     )
-    drop_after: int = Field(2, ge=1, description="looks in a row without verification drop a hypothesis")
+    drop_after: int = Field(
+        3, ge=1, description="looks against a hypothesis (another one verified, it not), less those for it, that drop it"
+    )
+    drop_unverified: int = Field(
+        6, ge=1, description="looks in a row that verify a hypothesis not at all drop it (no other one verified either)"
+    )
+    confirm_alone_looks: int = Field(
+        3, ge=1, description="looks that must verify a hypothesis after its last rival fell before it is committed"
+    )
+    confirm_alone_distance: float = Field(
+        1.0, ge=0, description="m of motion a hypothesis must survive after its last rival fell before it is committed"
+    )
     same_place: float = Field(1.0, gt=0, description="m: candidates this close (through the graph) are one hypothesis")
     same_place_in_map: float = Field(
         1.5, gt=0, description="m: ... or this close by the locations' map poses, where the graph does not join them"
@@ -86,8 +118,11 @@ class Hypothesis:
     tracker: GraphMaintainer
     support: int  # looks that verified it
     odometer_start: float  # the robot's odometer when it was found
-    misses: int = 0
+    misses: int = 0  # looks against it (another hypothesis verified, it not), less the looks for it since, never below 0
+    unverified: int = 0  # looks in a row that did not verify it
     places: set[int] = field(default_factory=set)  # the locations it was verified in
+    alone_since: float | None = None  # the start-up odometer when its last rival fell (None: rivals live)
+    alone_support: int = 0  # looks that verified it since then
 
     @property
     def vertex(self) -> int:
@@ -192,23 +227,36 @@ class Startup:
         for h in self.hypotheses:
             h.tracker.localizer.strict = rivals
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
-            if h.tracker.last_verified:
-                h.support, h.misses = h.support + 1, 0
-                h.places.add(h.vertex)
-            else:
-                h.misses += 1
-        self.hypotheses = [h for h in self.hypotheses if h.misses < self.config.drop_after]
-        check_all = self.config.check_all and not self.hypotheses and self._odometer >= self._checked_at + 1.0
+            if not h.tracker.last_verified:
+                self._relocate(h, self._perceive(obs)[0], obs.odom)
+        self._weigh()
+        alone = len(self.hypotheses) == 1
+        check_all = self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0
         self._recognise(obs, check_all)
+
+    def _weigh(self) -> None:
+        """This look's evidence: support for the hypotheses it verified; against the others only if
+        it verified one; the dropped ones gone; the survivor's time alone."""
+        verified = [h.tracker.last_verified for h in self.hypotheses]
+        telling = any(verified)
+        for h, ok in zip(self.hypotheses, verified, strict=True):
+            if ok:
+                h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
+                h.places.add(h.vertex)
+                h.alone_support += int(h.alone_since is not None)
+            else:
+                h.misses += int(telling)
+                h.unverified += 1
+        config = self.config
+        self.hypotheses = [h for h in self.hypotheses if h.misses < config.drop_after and h.unverified < config.drop_unverified]
+        if len(self.hypotheses) == 1 and self.hypotheses[0].alone_since is None:
+            self.hypotheses[0].alone_since, self.hypotheses[0].alone_support = self._odometer, 0
 
     def _recognise(self, obs: Observation, check_all: bool) -> int:
         """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
         matching; how many were added."""
         m = self.maintainer
-        if self._perceived is None or self._perceived[0] != obs.stamp:  # once a look, though asked twice
-            query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
-            self._perceived = (obs.stamp, query, self.describe(obs.points))
-        _, query, descriptor = self._perceived
+        query, descriptor = self._perceive(obs)
         if check_all:
             self._checked_at = self._odometer
             self.checks += 1
@@ -218,10 +266,43 @@ class Startup:
         for located in found:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
+                tracker.last_verified = True  # this look verified it
                 self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex}))
                 self.seen += 1
                 added += 1
+        alone = self._odometer if len(self.hypotheses) == 1 else None
+        for h in self.hypotheses if added else []:  # a new rival: nobody is alone; a first find: alone from now
+            h.alone_since, h.alone_support = alone, 1 if alone is not None else 0
         return added
+
+    def _perceive(self, obs: Observation) -> tuple[PreparedGrid, NDArray[np.float32]]:
+        """The look's scan prepared for matching, and its descriptor (once a look, though asked twice)."""
+        m = self.maintainer
+        if self._perceived is None or self._perceived[0] != obs.stamp:
+            query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
+            self._perceived = (obs.stamp, query, self.describe(obs.points))
+        return self._perceived[1], self._perceived[2]
+
+    def _relocate(self, h: Hypothesis, query: PreparedGrid, odom: NDArray) -> bool:
+        """A hypothesis its tracker did not verify, checked again where it puts the robot: in its
+        location and the neighbouring ones, at the pose the edges predict, within
+        ``max_neighbour_jump``. A tracker keeps its location until the robot leaves its reach and may
+        refuse corrections there while the robot has crossed into the next one (out of a room into
+        the corridor): the hypothesis is a place, not the location it is kept in, and the right
+        place lost three looks that way while a look-alike's tracker crossed (on a generated wing,
+        a start-up committed 12.5 m off). Re-verified: tracked from that location on."""
+        graph, config = self.maintainer.graph, self.maintainer.config
+        candidates = [(h.vertex, np.zeros(3))] + graph.neighbours(h.vertex)
+        for vertex, pose_uv in candidates:
+            guess = between(pose_uv, h.pose)  # the robot in that location's frame, by the edge
+            if float(np.hypot(guess[0], guess[1])) > config.max_edge_length:
+                continue
+            located = h.tracker.localizer.verify(query, vertex, guess, config.max_neighbour_jump)
+            if located is not None:
+                h.tracker.start_at(vertex, located.pose, odom)
+                h.tracker.last_verified = True
+                return True
+        return False
 
     def _same_place(self, h: Hypothesis, vertex: int, pose: NDArray) -> bool:
         """Does (vertex, pose) put the robot where ``h`` does? Compared through the graph, or, for
@@ -242,14 +323,19 @@ class Startup:
         return float(np.hypot(*(predicted[:2] - h.pose[:2]))) <= self.config.same_place
 
     def _committed(self) -> Hypothesis | None:
+        """The hypothesis that passes points 1-3 of the commitment rule (the module docstring), or None."""
         if len(self.hypotheses) != 1:
             return None
-        h = self.hypotheses[0]
+        h, config = self.hypotheses[0], self.config
+        if not h.tracker.last_verified or h.alone_since is None:
+            return None
         moved = self._odometer - h.odometer_start
-        if h.support < self.config.confirm_looks or moved < self.config.confirm_distance:
+        if h.support < config.confirm_looks or moved < config.confirm_distance:
+            return None
+        if h.alone_support < config.confirm_alone_looks or self._odometer - h.alone_since < config.confirm_alone_distance:
             return None
         # a room and its mirror image agree from inside; the corridor outside the door tells them apart
-        if len(h.places) >= self.config.confirm_places or moved >= self.config.confirm_distance_one_place:
+        if len(h.places) >= config.confirm_places or moved >= config.confirm_distance_one_place:
             return h
         return None
 

@@ -162,7 +162,14 @@ def test_the_baseline_that_believes_itself_at_the_goal_elsewhere_fails_in_locali
 GRID = GridConfig()
 QUICK = {  # commit at the first look that verifies one location only: the start is not what is tested
     "descriptor": "scan_context",
-    "startup": {"confirm_looks": 1, "confirm_distance": 0.0, "confirm_places": 1, "confirm_distance_one_place": 0.0},
+    "startup": {
+        "confirm_looks": 1,
+        "confirm_distance": 0.0,
+        "confirm_places": 1,
+        "confirm_distance_one_place": 0.0,
+        "confirm_alone_looks": 1,
+        "confirm_alone_distance": 0.0,
+    },
 }
 
 

@@ -1,0 +1,164 @@
+"""NavTopo's start-up commitment rule (``navtopo.startup``) against ground truth: the evidence a
+look gives (bookkeeping on hypotheses whose verdicts are given), and a crafted building of two
+identical rooms on one corridor, where a commitment from inside a room would be a guess."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from navkit import geometry as se2
+from navkit.raster import FREE
+from navkit.types import Observation
+from navtopo.graph import TopologicalGraph
+from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
+from navtopo.localization import LocalizationConfig
+from navtopo.mapping import GraphMaintainer, MappingConfig
+from navtopo.scan_matching import MatchingConfig
+from navtopo.startup import Hypothesis, Startup, StartupConfig
+from runners.sim import Simulator
+from scenarios.scenario import build_scenario
+from scenarios.schema import parse_spec
+
+GRID = GridConfig()
+
+
+# -- the evidence of a look, on hypotheses whose verdicts the test gives -----------------------------
+
+
+def _bookkeeping(count: int, **config) -> tuple[Startup, list[Hypothesis]]:
+    """A start-up holding ``count`` hypotheses (vertex k each) whose trackers' verdicts are set by hand."""
+    startup = Startup(SimpleNamespace(), None, StartupConfig(**config))  # type: ignore[arg-type]
+    hypotheses = [
+        Hypothesis(SimpleNamespace(current=k, pose_in_current=np.zeros(3), last_verified=False), 1, 0.0, places={k})  # type: ignore[arg-type]
+        for k in range(count)
+    ]
+    startup.hypotheses = list(hypotheses)
+    return startup, hypotheses
+
+
+def _look(startup: Startup, hypotheses: list[Hypothesis], verdicts: list[bool], moved: float = 0.25) -> None:
+    """A look after ``moved`` metres that verifies ``hypotheses[k]`` iff ``verdicts[k]`` (dropped ones are not asked)."""
+    startup._odometer += moved
+    for h, ok in zip(hypotheses, verdicts, strict=True):
+        h.tracker.last_verified = ok
+    startup._weigh()
+
+
+def test_a_look_that_verifies_no_hypothesis_drops_none():
+    """Turning on the spot, the matcher may verify nobody for looks on end: no place lost ground."""
+    startup, both = _bookkeeping(2)
+    for _ in range(5):
+        _look(startup, both, [False, False])
+    assert startup.hypotheses == both
+    for _ in range(5):  # ... but a place never verified again is dropped in the end
+        _look(startup, both, [False, False])
+    assert startup.hypotheses == []
+
+
+def test_an_exact_look_alike_is_never_left_alone_by_chance_and_a_contradicted_place_falls():
+    """The right place and its look-alike, each missed at one look in four (not the same ones):
+    both stay, so nothing is committed; a third place the scan contradicts falls in drop_after looks."""
+    startup, three = _bookkeeping(3)
+    right, alike, contradicted = three
+    for k in range(40):
+        _look(startup, three, [k % 4 != 0, k % 4 != 2, False])
+        assert startup._committed() is None
+        if k >= startup.config.drop_after - 1:
+            assert contradicted not in startup.hypotheses
+    assert startup.hypotheses == [right, alike]
+
+
+def test_the_survivor_is_committed_only_after_it_has_been_verified_alone_for_a_while():
+    startup, both = _bookkeeping(2, confirm_places=1)
+    right, _ = both
+    config = startup.config
+    for _ in range(4):
+        _look(startup, both, [True, True])
+    for _ in range(config.drop_after):  # the corridor outside the door tells them apart
+        _look(startup, both, [True, False])
+    assert startup.hypotheses == [right] and right.alone_since is not None
+    assert startup._committed() is None  # just alone: a rival dropped at one look may come back
+    looks = 0
+    while startup._committed() is None:
+        _look(startup, [right], [True])
+        looks += 1
+    assert looks == max(config.confirm_alone_looks, int(np.ceil(config.confirm_alone_distance / 0.25)))
+    _look(startup, [right], [False])
+    assert startup._committed() is None  # the committing look must verify it
+
+
+# -- a crafted building: two identical rooms on one corridor -----------------------------------------
+
+ROOM_A, ROOM_B = 4.0, 12.0  # the rooms' centres (x); the corridor runs along y = 0 from x = 0 to 20
+
+
+def _twin_rooms() -> dict:
+    """Two rooms identical to the raster cell (door, box, a bench across the corridor), 8 m apart on
+    the south of a closed corridor: from inside either room the scan is the same; the corridor's ends
+    and its other benches tell them apart."""
+    rooms = [{"center": [10.0, 0.0], "size": [20.0, 2.0]}]  # the corridor, y in [-1, 1]
+    bench = {"size": [1.2, 0.4], "height": 0.8}
+    obstacles = [{"center": [x, 0.75], **bench} for x in (2.0, 9.1, 17.5)]
+    for x in (ROOM_A, ROOM_B):
+        rooms += [{"center": [x, -3.1], "size": [3.0, 4.0]}, {"center": [x + 0.5, -1.05], "size": [1.0, 0.3]}]
+        obstacles += [{"center": [x + 0.8, -4.3], "size": [0.6, 0.6], "height": 0.8}, {"center": [x + 2.2, 0.75], **bench}]
+    return {
+        "format": "navtopo-scenario/1",
+        "name": "twin_rooms",
+        "seed": 5,
+        "world": {"resolution": 0.05, "wall_height": 2.6, "rooms": rooms, "obstacles": obstacles},
+        "mapping_route": {"waypoints": [[1.0, 0.0], [19.0, 0.0]]},
+        "trials": [{"start": [ROOM_A, -3.5, 1.57], "goal": [18.0, 0.0]}],
+    }
+
+
+def _drive() -> list[np.ndarray]:
+    """From inside room A out of its door, a turn east, and along the corridor (true poses)."""
+    poses = [np.array([ROOM_A + 0.5, y, np.pi / 2]) for y in np.arange(-3.6, 0.0, 0.1)]
+    poses += [np.array([ROOM_A + 0.5, 0.0, yaw]) for yaw in np.radians(np.arange(80.0, -1.0, -10.0))]
+    poses += [np.array([x, 0.0, 0.0]) for x in np.arange(ROOM_A + 0.6, ROOM_A + 6.0, 0.1)]
+    return poses
+
+
+@pytest.fixture(scope="module")
+def twin_rooms(tmp_path_factory):
+    origin = Path(tmp_path_factory.mktemp("twin")) / "twin_rooms.yaml"
+    scenario = build_scenario(parse_spec(_twin_rooms(), origin), origin)
+    places = [[x, -3.1, 0.0] for x in (ROOM_A, ROOM_B)] + [[x, 0.0, 0.0] for x in (1.5, 4.5, 8.5, 12.5, 16.5, 19.0)]
+    with Simulator(scenario, seed=0) as sim:
+        grids = [grid_from_points(sim.scan(np.asarray(p, float)), GRID) for p in places]
+        poses = _drive()
+        scans = [sim.scan(p) for p in poses]
+    graph = TopologicalGraph(4)
+    for k, (pose, grid) in enumerate(zip(places, grids, strict=True)):
+        graph.add_vertex(CroppedGrid.from_grid(grid), np.ones(4, np.float32), pose, float(k))
+    for u, v in [(0, 3), (1, 5), (2, 3), (3, 4), (4, 5), (5, 6), (6, 7)]:
+        graph.add_edge(u, v, se2.between(np.asarray(places[u], float), np.asarray(places[v], float)))
+    return graph, np.array(places), poses, scans
+
+
+def test_identical_rooms_are_told_apart_in_the_corridor_never_guessed_from_inside(twin_rooms):
+    """Inside room A, room B verifies as well (the map is aliased there): no commitment. Out in the
+    corridor its ends tell the rooms apart: the start-up commits, to the right place."""
+    graph, places, poses, scans = twin_rooms
+    assert not np.array_equal(graph.vertices[0].grid.cells, np.full_like(graph.vertices[0].grid.cells, FREE))
+    describe = lambda points: np.ones(4, np.float32)  # noqa: E731 - place recognition tells nothing apart
+    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
+    startup = Startup(maintainer, describe, StartupConfig())
+    most_alive, committed_at = 0, None
+    for k, (pose, scan) in enumerate(zip(poses, scans, strict=True)):
+        committed = startup.step(Observation(0.2 * k, scan, se2.between(poses[0], pose)))
+        most_alive = max(most_alive, len(startup.hypotheses))
+        in_room = pose[1] < -1.0
+        if committed is not None:
+            where = se2.compose(places[committed.vertex], committed.pose)
+            assert np.hypot(*(where[:2] - pose[:2])) < 0.3, f"committed {np.hypot(*(where[:2] - pose[:2])):.1f} m off"
+            assert not in_room, "committed from inside a room that has a twin"
+            committed_at = k
+            break
+    assert most_alive >= 2, "the twin room verified too: the crafted map is aliased"
+    assert committed_at is not None, "the corridor tells the rooms apart"
