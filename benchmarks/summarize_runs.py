@@ -86,7 +86,8 @@ def main() -> None:
                     f"({mapping.get('vertices_second_half', '–')}, {mapping.get('vertices_second_half_revisited', '–')}) | "
                     f"{_num(per_scan.get('median'), 1)} / {_num(per_scan.get('p95'), 1)} | "
                     f"{counters.get('inside')} / {counters.get('moved_along_edge')} / {counters.get('localized')} / "
-                    f"{counters.get('loop_closures')} / {counters.get('rejected_edges')} / {counters.get('stayed')} |"
+                    f"{counters.get('loop_closures')} / {counters.get('rejected_edges')} / {counters.get('stayed')} | "
+                    f"{counters.get('rejected_closures', '–')} / {counters.get('undone_closures', '–')} |"
                 )
     print("| run | scenario / setting | git revision | created |\n|---|---|---|---|")
     print("\n".join(rows_runs))
@@ -113,9 +114,9 @@ def main() -> None:
         print(
             "\n| scenario / setting | vertices | edges | edge error median / max (m) | edge error median / max (°) | "
             "new in 2nd half (count, at revisited places) | ms per scan median / p95 | "
-            "inside / along edge / localized / loop closures / rejected / stayed |"
+            "inside / along edge / localized / loop closures / rejected / stayed | loop closures refused / undone |"
         )
-        print("|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|")
         print("\n".join(rows_map))
 
 

@@ -107,6 +107,21 @@ class MappingConfig(BaseModel):
     closure_max_sigma: float = Field(
         0.1, gt=0, description="... and each match must fix the pose to this (m, the covariance's largest axis)"
     )
+    closure_edge_sigma: float = Field(
+        0.05,
+        ge=0,
+        description="a loop closure must agree with the pose composed along the graph's way round (the odometry "
+        "chain and the edges between the two places): each edge of it counts the matcher's covariance plus this "
+        "(m, standard deviation per edge, plus closure_edge_sigma_per_metre of its length) ...",
+    )
+    closure_edge_sigma_per_metre: float = Field(0.01, ge=0, description="... plus this share of the edge's length ...")
+    closure_edge_sigma_deg: float = Field(0.3, ge=0, description="... and this (degrees per edge) ...")
+    closure_gate: float | None = Field(
+        16.27,
+        gt=0,
+        description="... within this squared Mahalanobis distance (chi-square, 3 degrees of freedom: 16.27 is its "
+        "99.9 % quantile), else the closure is refused and counted (rejected_closures). None: no check",
+    )
     # a prior on odometry's quality (not the benchmark's setting): how the pose's covariance grows
     # between matches, so that the pose a new location's edge starts from weighs what it is worth
     odometry_sigma_per_metre: float = Field(0.02, ge=0, description="odometry translation noise, m per m travelled")
@@ -158,6 +173,8 @@ class MappingCounters:
     edge_refinements: int = 0  # mapping: measurements of an existing edge fused into it
     stayed: int = 0  # mapping: outside the location's reach, yet its scan still matched
     closures_from_inside: int = 0  # mapping: edges to a location passed alongside, confirmed over motion
+    rejected_closures: int = 0  # mapping: loop closures that disagreed with the graph's way round (look-alike places)
+    undone_closures: int = 0  # mapping: loop-closure edges removed when a later closure contradicted them
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -204,6 +221,9 @@ class GraphMaintainer:
         self._odometer_at_measure: dict[tuple[int, int], float] = {}
         self._odometer_at_closure_check = -np.inf
         # (current, candidate) -> (T_current,candidate measured, its covariance, the odometer then)
+        # loop closures checked against the graph's way round: (u, v, squared Mahalanobis distance, accepted)
+        self.closure_checks: list[tuple[int, int, float, bool]] = []
+        self._closure_edges: set[tuple[int, int]] = set()  # (u, v), u < v: the edges that closed loops
         self._pending_closures: dict[tuple[int, int], tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
 
     # -- odometry ----------------------------------------------------------------------------------
@@ -493,7 +513,7 @@ class GraphMaintainer:
                 self._pending_closures[key] = (pose_cv, covariance_cv, self._odometer)  # start over from this one
                 continue
             del self._pending_closures[key]
-            if not self._edge_acceptable(self.current, vertex, pose_cv):
+            if not self._edge_acceptable(self.current, vertex, pose_cv, covariance_cv):
                 continue
             self._new_edge(self.current, vertex, pending[0], pending[1])
             self._measure_edge(self.current, vertex, pose_cv, covariance_cv)
@@ -554,7 +574,7 @@ class GraphMaintainer:
                 self.last_verified = True
                 return True
             pose_cu, covariance_cu = self._through(self.pose_in_current, self.pose_covariance, located)
-            if self.mapping and not self._edge_acceptable(self.current, located.vertex, pose_cu):
+            if self.mapping and not self._edge_acceptable(self.current, located.vertex, pose_cu, covariance_cu):
                 continue
             if self.mapping and not self.graph.has_edge(self.current, located.vertex):
                 self._new_edge(self.current, located.vertex, pose_cu, covariance_cu)
@@ -563,7 +583,9 @@ class GraphMaintainer:
             return True
         return False
 
-    def _edge_acceptable(self, u: int, v: int, pose_uv: NDArray[np.float64]) -> bool:
+    def _edge_acceptable(
+        self, u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64] | None = None
+    ) -> bool:
         length = float(np.hypot(pose_uv[0], pose_uv[1]))
         if length > 2.0 * self.config.max_edge_length:
             self.counters.rejected_edges += 1
@@ -576,8 +598,98 @@ class GraphMaintainer:
                 self.counters.rejected_edges += 1
                 return False
         elif path is not None:
+            gate = self.config.closure_gate
+            distance = self.closure_distance(path, pose_uv, covariance)
+            if gate is not None and distance > gate and self._undo_contradicted(u, v, path, pose_uv, covariance):
+                path, _ = self.graph.shortest_path(u, v)
+                distance = self.closure_distance(path, pose_uv, covariance) if path is not None else 0.0
+            accepted = gate is None or distance <= gate
+            self.closure_checks.append((u, v, round(distance, 2), accepted))
+            if not accepted:
+                self.counters.rejected_closures += 1
+                return False
             self.counters.loop_closures += 1
+            self._closure_edges.add((min(u, v), max(u, v)))
         return True
+
+    def _undo_contradicted(
+        self, u: int, v: int, path: list[int], pose_uv: NDArray[np.float64], covariance: NDArray[np.float64] | None
+    ) -> bool:
+        """A closure (u, v) that disagrees with the graph's way round, where that way runs over
+        earlier loop closures: if it agrees with the way round the graph's other edges (the
+        chain made driving, no closure) and an earlier closure on the way does not, that earlier
+        one joined look-alike places: its edge is removed (undone, counted). True if any was."""
+        gate = self.config.closure_gate
+        assert gate is not None
+        on_path = [
+            (min(a, b), max(a, b))
+            for a, b in zip(path[:-1], path[1:], strict=True)
+            if (min(a, b), max(a, b)) in self._closure_edges
+        ]
+        if not on_path:
+            return False
+        removed = {frozenset(key) for key in self._closure_edges}
+        spine = self._path_avoiding(u, v, removed)
+        if spine is None or self.closure_distance(spine, pose_uv, covariance) > gate:
+            return False
+        undone = False
+        for a, b in on_path:
+            way = self._path_avoiding(a, b, removed)
+            estimate = self._edges.get((a, b))
+            measured = None if estimate is None else np.asarray(np.linalg.inv(estimate.information), dtype=np.float64)
+            if way is None or self.closure_distance(way, self.graph.edge(a, b), measured) <= gate:
+                continue
+            self.graph.remove_edge(a, b)
+            self._edges.pop((a, b), None)
+            self._closure_edges.discard((a, b))
+            self.counters.undone_closures += 1
+            undone = True
+        return undone
+
+    def _path_avoiding(self, u: int, v: int, removed: set[frozenset[int]]) -> list[int] | None:
+        """The graph's shortest path from u to v over the edges but ``removed``; None if there is none."""
+        dist, prev = self.graph.dijkstra(u, removed)
+        if not np.isfinite(dist[v]):
+            return None
+        path = [v]
+        while path[-1] != u:
+            path.append(int(prev[path[-1]]))
+        return path[::-1]
+
+    def chain(self, path: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The last vertex of ``path`` in the first one's frame composed along its edges, and the
+        covariance of that pose: each edge's (the information of its fused measurements) plus the
+        floor ``closure_edge_sigma`` (+ per metre of the edge) and ``closure_edge_sigma_deg``, as
+        the measurements of an edge are not independent (fused, they would claim millimetres)."""
+        config = self.config
+        pose, covariance = np.zeros(3), np.zeros((3, 3))
+        for a, b in zip(path[:-1], path[1:], strict=True):
+            pose_ab = self.graph.edge(a, b)
+            sigma = config.closure_edge_sigma + config.closure_edge_sigma_per_metre * float(np.hypot(*pose_ab[:2]))
+            edge_cov = np.diag([sigma**2, sigma**2, np.radians(config.closure_edge_sigma_deg) ** 2])
+            estimate = self._edges.get((min(a, b), max(a, b)))
+            if estimate is not None:
+                measured = np.linalg.inv(estimate.information)
+                if a > b:  # kept as T_ba: its covariance in a's frame
+                    measured = inverse_with_covariance(self.graph.edge(b, a), measured)[1]
+                edge_cov = edge_cov + measured
+            pose, covariance = compose_with_covariance(pose, covariance, pose_ab, edge_cov)
+        return pose, covariance
+
+    def closure_distance(
+        self, path: list[int], pose_uv: NDArray[np.float64], covariance: NDArray[np.float64] | None = None
+    ) -> float:
+        """The squared Mahalanobis distance between a loop closure's measured ``T_uv`` (with its
+        ``covariance``) and the pose composed along the graph's ``path`` from u to v: how well the
+        closure agrees with the odometry chain and the edges between its places. A look-alike place
+        matched instead of the right one sits a room, a corridor's length or a half turn away from
+        where the chain puts it; the chain's uncertainty grows with its edges, so a long way round
+        admits more (the right place still agrees)."""
+        composed, chain_covariance = self.chain(path)
+        total = chain_covariance + (np.zeros((3, 3)) if covariance is None else np.asarray(covariance, dtype=np.float64))
+        difference = np.asarray(pose_uv, dtype=np.float64) - composed
+        difference[2] = wrap_angle(difference[2])
+        return float(difference @ np.linalg.solve(total + np.diag([1e-6, 1e-6, 1e-8]), difference))
 
     # -- graph changes -----------------------------------------------------------------------------
 

@@ -178,6 +178,11 @@ class NavTopo:
             "vertex_stamps": stamps,
             "edges_stamped": [(stamps[u], stamps[v], [float(x) for x in pose]) for u, v, pose in self.graph.edges()],
             "map_frame_hints": hint_chain(self.graph)[0],
+            # each loop closure checked against the graph's way round: [stamp_u, stamp_v, squared
+            # Mahalanobis distance, accepted]
+            "closure_checks": [
+                [stamps[u], stamps[v], distance, accepted] for u, v, distance, accepted in self.maintainer.closure_checks
+            ],
         }
 
     # -- navigation --------------------------------------------------------------------------------

@@ -353,3 +353,84 @@ def test_with_drifting_odometry_the_lidar_hints_place_the_locations_in_the_map_f
     system.save(tmp_path / "map")
     loaded = NavTopo.load(tmp_path / "map", config())
     np.testing.assert_allclose(loaded.navigator.map_poses, relaxed_poses(graph), atol=1e-9)
+
+
+def _ring_maintainer(heading_noise_deg: float = 0.1, seed: int = 0):
+    """A mapped ring corridor 24 x 12 m, locations every 3 m made in order (edges measured with
+    small errors), the robot back in the last location, 1.5 m short of the first: its true poses."""
+    from navtopo.local_grid import CroppedGrid, GridConfig
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    corners = [(0.0, 0.0), (24.0, 0.0), (24.0, 12.0), (0.0, 12.0), (0.0, 1.5)]
+    truth = []
+    for (x0, y0), (x1, y1) in zip(corners[:-1], corners[1:], strict=True):
+        yaw = float(np.arctan2(y1 - y0, x1 - x0))
+        for t in np.arange(0.0, np.hypot(x1 - x0, y1 - y0) - 1e-9, 3.0):
+            truth.append(np.array([x0 + t * np.cos(yaw), y0 + t * np.sin(yaw), yaw]))
+    truth.append(np.array([0.0, 1.5, -np.pi / 2]))
+    graph = TopologicalGraph(4)
+    grid = CroppedGrid.from_grid(np.zeros((GridConfig().size, GridConfig().size), np.uint8))
+    maintainer = GraphMaintainer(
+        graph, lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), MappingConfig(), LocalizationConfig()
+    )
+    rng = np.random.default_rng(seed)
+    covariance = np.diag([0.02**2, 0.02**2, np.radians(0.1) ** 2])  # what the matcher reports
+    for k, pose in enumerate(truth):
+        graph.add_vertex(grid, np.ones(4), pose, float(k), 3.0 * k)
+        if k:
+            measured = se2.between(truth[k - 1], pose) + rng.normal(0, [0.02, 0.02, np.radians(heading_noise_deg)])
+            maintainer._new_edge(k - 1, k, measured, covariance)
+    maintainer.current = len(truth) - 1
+    return maintainer, truth, covariance
+
+
+def test_a_loop_closure_to_a_look_alike_place_is_refused_and_the_right_one_accepted():
+    """Ground truth: the robot, back at the ring's start, matches a location. The right one (the
+    first, 1.5 m ahead) agrees with the pose composed round the ring and closes the loop; a
+    look-alike 3 m further along the same corridor (a row of identical rooms: the match says
+    "1.5 m ahead" there too) and the mirror-image place across the ring (the same view turned half
+    round) disagree with it and are refused, and counted."""
+    maintainer, truth, covariance = _ring_maintainer()
+    current = maintainer.current
+    right = se2.between(truth[current], truth[0])
+    assert maintainer._edge_acceptable(current, 0, right, covariance)
+    assert maintainer.counters.loop_closures == 1 and maintainer.counters.rejected_closures == 0
+    # the look-alike one location on: the same relative pose, but the graph puts it 3 m further
+    assert not maintainer._edge_acceptable(current, 1, right, covariance)
+    # the mirror place: location 12 (at (24, 12), facing the other way) seen as the first one
+    assert not maintainer._edge_acceptable(current, 12, right, covariance)
+    assert maintainer.counters.rejected_closures == 2 and maintainer.counters.loop_closures == 1
+    assert [accepted for *_, accepted in maintainer.closure_checks] == [True, False, False]
+
+
+def test_the_closure_check_admits_the_drift_of_a_long_way_round():
+    """The pose composed round the ring carries every edge's error: with headings 0.3° off per edge
+    (the edges' usual worst) the right closure is accepted for every draw, and a look-alike 3 m on
+    still refused."""
+    for seed in range(10):
+        maintainer, truth, covariance = _ring_maintainer(heading_noise_deg=0.3, seed=seed)
+        current = maintainer.current
+        right = se2.between(truth[current], truth[0])
+        assert maintainer._edge_acceptable(current, 0, right, covariance), seed
+        assert not maintainer._edge_acceptable(current, 1, right, covariance), seed
+
+
+def test_a_look_alike_closure_in_the_map_is_undone_when_the_right_place_contradicts_it():
+    """Ground truth: a closure joined the ring's last location to the second one (a look-alike 3 m
+    along: its edge says "1.5 m ahead"). The robot then matches the first location, truly 1.5 m
+    ahead: that disagrees with the way round over the wrong closure but agrees with the chain made
+    driving, and the wrong closure disagrees with that chain: it is undone and the right one made."""
+    maintainer, truth, covariance = _ring_maintainer()
+    last = maintainer.current
+    right = se2.between(truth[last], truth[0])
+    maintainer._new_edge(last, 1, right, covariance)  # the look-alike closure, already in the map
+    maintainer._closure_edges.add((1, last))
+    assert maintainer._edge_acceptable(last, 0, right, covariance)
+    assert not maintainer.graph.has_edge(last, 1)
+    assert maintainer.counters.undone_closures == 1 and maintainer.counters.loop_closures == 1
+    # a closure no earlier one contradicts: nothing undone
+    maintainer.graph.add_edge(last, 0, right)
+    assert not maintainer._edge_acceptable(last, 1, right, covariance)
+    assert maintainer.counters.undone_closures == 1
