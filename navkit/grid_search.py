@@ -96,6 +96,36 @@ def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np
     return squared >= radius_cells * radius_cells - 1e-6
 
 
+def medial_axis(squared: NDArray) -> NDArray[np.bool_]:
+    """(H, W) the cells of a clearance raster (``clearance_squared``, any monotone form)
+    on the medial axis of the free space: at least as clear as both neighbours on some line through
+    the cell (along a row, a column or a diagonal) and clearer than one of them. Across a passage
+    that is its middle cell, or its middle two; along a passage, where the clearance is level, no
+    cell counts by that line. Non-free cells (clearance 0) never count."""
+    clearance = np.asarray(squared).astype(np.int32)
+    padded = np.pad(clearance, 1, mode="constant", constant_values=0)
+    height, width = clearance.shape
+    centre = padded[1:-1, 1:-1]
+    on_axis = np.zeros(clearance.shape, bool)
+    for (r1, c1), (r2, c2) in (((0, 1), (2, 1)), ((1, 0), (1, 2)), ((0, 0), (2, 2)), ((0, 2), (2, 0))):
+        a = padded[r1 : r1 + height, c1 : c1 + width]
+        b = padded[r2 : r2 + height, c2 : c2 + width]
+        on_axis |= (centre >= a) & (centre >= b) & ((centre > a) | (centre > b))
+    return on_axis & (clearance > 0)
+
+
+def passable(squared: NDArray, radius_m: float, resolution: float, medial_m: float | None = None) -> NDArray[np.bool_]:
+    """The cells a robot's centre may take on a clearance raster (``clearance_squared``): those
+    ``radius_m`` clear of every non-free cell's centre; with ``medial_m``, also the cells of the free
+    space's medial axis (``medial_axis``) that far clear: a passage narrower than the radius allows
+    (a door of the robot's width and a little more whose jambs the map drew a cell into it), passed
+    along its middle."""
+    mask = clear_of(squared, radius_m, resolution)
+    if medial_m is not None:
+        mask |= medial_axis(squared) & clear_of(squared, medial_m, resolution)
+    return mask
+
+
 def path_length(cells: ArrayLike | None, resolution: float) -> float:
     """Length in metres of a (K, 2) cell path (Euclidean between centres); 0 for K < 2 or None."""
     if cells is None:

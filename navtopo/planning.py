@@ -207,10 +207,7 @@ class UnionGrid:
                 self._masks[key] = grid_search.inflate_free(self._free(kind), radius, self.frame.resolution)
             else:
                 clearance = self._squared(kind)
-                mask = grid_search.clear_of(clearance, radius, self.frame.resolution)
-                if medial is not None:
-                    mask |= medial_axis(clearance) & grid_search.clear_of(clearance, medial, self.frame.resolution)
-                self._masks[key] = mask
+                self._masks[key] = grid_search.passable(clearance, radius, self.frame.resolution, medial)
         return self._masks[key]
 
     def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.int32]:
@@ -621,24 +618,6 @@ def _parts(passable: NDArray[np.bool_]) -> NDArray[np.int32]:
     another (``navkit.grid_search`` moves diagonally only between two free cells)."""
     _, labels = cv2.connectedComponents(passable.view(np.uint8), connectivity=4)
     return np.asarray(labels, dtype=np.int32)
-
-
-def medial_axis(squared: NDArray) -> NDArray[np.bool_]:
-    """(H, W) the cells of a clearance raster (``grid_search.clearance_squared``, any monotone form)
-    on the medial axis of the free space: at least as clear as both neighbours on some line through
-    the cell (along a row, a column or a diagonal) and clearer than one of them. Across a passage
-    that is its middle cell, or its middle two; along a passage, where the clearance is level, no
-    cell counts by that line. Non-free cells (clearance 0) never count."""
-    clearance = np.asarray(squared).astype(np.int16)
-    padded = np.pad(clearance, 1, mode="constant", constant_values=0)
-    height, width = clearance.shape
-    centre = padded[1:-1, 1:-1]
-    on_axis = np.zeros(clearance.shape, bool)
-    for (r1, c1), (r2, c2) in (((0, 1), (2, 1)), ((1, 0), (1, 2)), ((0, 0), (2, 2)), ((0, 2), (2, 0))):
-        a = padded[r1 : r1 + height, c1 : c1 + width]
-        b = padded[r2 : r2 + height, c2 : c2 + width]
-        on_axis |= (centre >= a) & (centre >= b) & ((centre > a) | (centre > b))
-    return on_axis & (clearance > 0)
 
 
 def _turned(xy: NDArray, yaw: float) -> NDArray[np.float64]:

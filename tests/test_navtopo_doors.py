@@ -17,6 +17,7 @@ from shapely.geometry import LineString, box
 from shapely.ops import unary_union
 
 from navkit import geometry as se2
+from navkit.grid_search import medial_axis
 from navkit.raster import FREE, OCCUPIED, GridFrame
 from navkit.scan import obstacle_points
 from navtopo.graph import TopologicalGraph
@@ -29,7 +30,6 @@ from navtopo.planning import (
     UnionGrids,
     build_union_grid,
     fit_passage,
-    medial_axis,
     moved_passage,
     narrow_part,
     shifted_path,

@@ -47,6 +47,11 @@ class PlanningConfig(BaseModel):
         "that paths keep from mapped walls; the follower deviates a little at corners",
     )
     unknown_fallback: bool = Field(True, description="with no path through known free cells, count unknown as free")
+    medial_passages: bool = Field(
+        True,
+        description="when no path keeps the robot radius plus half a cell from every wall cell, a passage along "
+        "the free space's medial axis at the robot radius from the wall cells' centres (a door of the robot's width)",
+    )
     snap_radius: float = Field(1.0, ge=0, description="m; a start or goal in the inflated zone moves to the nearest free cell")
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between replans")
     block_check_distance: float = Field(5.0, gt=0, description="m of the path ahead checked against new obstacles")

@@ -2,9 +2,11 @@
 
 As a Nav2 user's global planner on a static map: the map's known free cells eroded by the robot
 radius plus a margin (and half a cell, so the clearance holds to the cell boundary), then by the
-radius alone; then, if allowed, with unknown cells counted as free. The four masks are eroded once,
-when the map is loaded; a start or goal inside the eroded zone snaps to the nearest passable cell
-within ``snap_radius``. Obstacles the map lacks (``obstacles.UnmappedObstacles``) are blocked in
+radius and half a cell, then a passage narrower than that along the free space's medial axis at the
+radius (a door of the robot's width whose jambs the map drew a cell into it: NavTopo's local planner
+has the same level); then, if allowed, the same with unknown cells counted as free. The masks are
+eroded once, when the map is loaded; a start or goal inside the eroded zone snaps to the nearest
+passable cell within ``snap_radius``. Obstacles the map lacks (``obstacles.UnmappedObstacles``) are blocked in
 every mask: with any of them remembered the masks are eroded again at each plan, only as far as the
 fallbacks need (``navkit.grid_planning.plan_path`` asks for them one by one).
 
@@ -36,12 +38,17 @@ class GridPlanner:
         self._not_occupied = grid_map.cells != OCCUPIED
         wide = robot_radius + res / 2 + config.inflation_margin
         tight = robot_radius + res / 2
-        # (base free mask, radius) in the order they are tried; eroded masks cached per pair
-        self.attempts: list[tuple[str, float]] = [("known", wide), ("known", tight)]
-        if config.unknown_fallback:
-            self.attempts += [("unknown", wide), ("unknown", tight)]
-        self.eroded: dict[tuple[str, float], NDArray[np.bool_]] = {
-            key: grid_search.inflate_free(self._base(key[0]), key[1], res) for key in self.attempts
+        # (base free mask, radius, medial) in the order they are tried: with the margin, without it,
+        # then a passage narrower than that along its middle (``grid_search.passable``: a door of the
+        # robot's width whose jambs the map drew a cell into it); eroded masks cached per attempt
+        steps: list[tuple[float, float | None]] = [(wide, None), (tight, None)]
+        if config.medial_passages:
+            steps.append((tight, robot_radius))
+        kinds = ("known", "unknown") if config.unknown_fallback else ("known",)
+        self.attempts: list[tuple[str, float, float | None]] = [(kind, r, m) for kind in kinds for r, m in steps]
+        squared = {kind: grid_search.clearance_squared(self._base(kind)) for kind in kinds}
+        self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
+            key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
         }
 
     @property
@@ -61,10 +68,11 @@ class GridPlanner:
         blocked = self._blocked_cells(frame, obstacles) if len(obstacles) else None
 
         def mask(level: int) -> NDArray[np.bool_]:
-            kind, radius = self.attempts[level]
+            kind, radius, medial = key = self.attempts[level]
             if blocked is None:
-                return self.eroded[(kind, radius)]
-            return grid_search.inflate_free(self._base(kind) & ~blocked, radius, grid.resolution)
+                return self.eroded[key]
+            squared = grid_search.clearance_squared(self._base(kind) & ~blocked)
+            return grid_search.passable(squared, radius, grid.resolution, medial)
 
         return plan_path(mask, frame, start_xy, goal_xy, snap, levels=len(self.attempts))
 
@@ -73,11 +81,11 @@ class GridPlanner:
         the most lenient whether the start and the goal had a passable cell within the snap radius
         (neither: both in walls or off the map; both: no way joins them, e.g. a sealed room)."""
         grid = self.grid_map
-        kind, radius = self.attempts[-1]
+        kind, radius, medial = self.attempts[-1]
         free = self._base(kind)
         if len(obstacles):
             free = free & ~self._blocked_cells(grid.frame, obstacles)
-        lenient = grid_search.inflate_free(free, radius, grid.resolution)
+        lenient = grid_search.passable(grid_search.clearance_squared(free), radius, grid.resolution, medial)
         snap = int(np.ceil(self.config.snap_radius / grid.resolution))
         start, goal = np.asarray(start_xy, dtype=np.float64)[:2], np.asarray(goal_xy, dtype=np.float64)[:2]
         start_ok = grid_search.nearest_free(lenient, grid.frame.to_cell(start), snap) is not None
@@ -87,7 +95,10 @@ class GridPlanner:
         else:
             ends = " and ".join(name for name, ok in (("the start", start_ok), ("the goal", goal_ok)) if not ok)
             why = f"{ends} had no passable cell within {self.config.snap_radius:g} m"
-        levels = ", ".join(f"{kind} {radius:.2f} m" for kind, radius in self.attempts)
+        levels = ", ".join(
+            f"{kind} {radius:.2f} m" + ("" if medial is None else f" or {medial:.2f} m on the medial axis")
+            for kind, radius, medial in self.attempts
+        )
         blocked = f"; {len(obstacles)} remembered obstacle points blocked" if len(obstacles) else ""
         return (
             f"no path from ({start[0]:.2f}, {start[1]:.2f}) to ({goal[0]:.2f}, {goal[1]:.2f}) in the map frame, "
