@@ -115,7 +115,9 @@ def test_the_baseline_given_a_goal_in_a_room_its_map_shows_sealed_fails_in_globa
     system = _metric_grid(tiny, sim, folder)
     record = _run(tiny, sim, "metric_grid", system, _trial([1.0, 0.0, 0.0], [14.2, 5.0]))
     assert (record.success, record.reason, record.failure_stage) == (False, "no_path", "global_plan")
-    assert record.detail.startswith("no path from (") and "in the map frame, 4 levels tried" in record.detail
+    levels = len(system.planner.attempts)  # margin, radius, medial axis; then the same through unknown cells
+    assert levels == 6 and record.detail.startswith("no path from (")
+    assert f"in the map frame, {levels} levels tried" in record.detail and "on the medial axis" in record.detail
     assert record.detail.endswith("no way joins the start and the goal")  # both ends are in free space
     # a goal in the solid block inside the L, 2.9 m from either corridor: no passable cell near it
     record = _run(tiny, sim, "metric_grid", _metric_grid(tiny, sim, folder), _trial([1.0, 0.0, 0.0], [8.0, 4.0]))
