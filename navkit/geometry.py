@@ -90,6 +90,12 @@ def from_matrix(m: ArrayLike) -> Pose2:
     return np.array([m[0, 2], m[1, 2], np.arctan2(m[1, 0], m[0, 0])], dtype=np.float64)
 
 
+def arc_lengths(polyline: ArrayLike) -> NDArray[np.float64]:
+    """(K,) the arc length of each vertex of a polyline (K, 2+) from its first: 0 first."""
+    points = np.asarray(polyline, dtype=np.float64)[:, :2]
+    return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+
+
 def distance_to_polyline(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.float64]:
     """(M,) distance of each point (M, 2) to the polyline (K, 2), K >= 1 (a single point: to it)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)

@@ -30,7 +30,7 @@ import scipy.sparse as sparse
 from numpy.typing import NDArray
 from scipy.sparse.linalg import spsolve
 
-from navkit.geometry import between, wrap_angle
+from navkit.geometry import arc_lengths, between, wrap_angle
 from navtopo.graph import TopologicalGraph
 
 EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm median, up to 0.2 m)
@@ -127,7 +127,7 @@ def _travel(graph: TopologicalGraph, hints: NDArray) -> NDArray[np.float64]:
     hints' spacing stands in)."""
     travel = np.array([v.odometer if v.odometer is not None else np.nan for v in graph.vertices], dtype=np.float64)
     if np.isnan(travel).any():
-        travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(hints[:, :2], axis=0).T))])
+        travel = arc_lengths(hints)
     return travel
 
 

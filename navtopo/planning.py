@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
-from navkit.geometry import compose, distance_to_polyline, inverse, transform_points
+from navkit.geometry import arc_lengths, compose, distance_to_polyline, inverse, transform_points
 from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
@@ -487,7 +487,7 @@ def narrow_part(
     way in bends toward its axis); None if there is none, or if it is longer than ``longest`` (a
     narrow corridor, not a door: no straight line through it stands for the path)."""
     samples = _densify(path, step)  # on the path's segments: their arc lengths are the path's
-    sample_arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(samples, axis=0).T))])
+    sample_arcs = arc_lengths(samples)
     narrow = ~union.values_at(samples, mask, True)
     if not narrow.any():
         return None
@@ -498,7 +498,7 @@ def narrow_part(
     exit_arc = min(float(sample_arcs[last]) + extend, float(sample_arcs[-1]))
     if exit_arc - entry_arc > longest:
         return None
-    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    arcs = arc_lengths(path)
     return Passage(_point_at(path, arcs, entry_arc), _point_at(path, arcs, exit_arc), entry_arc, exit_arc)
 
 
@@ -514,7 +514,7 @@ def fit_passage(
     ``lead`` after it. The walls a map's cells place within a cell of where they are, and the
     robot's pose in its location, each move the path off a door's middle by a few centimetres,
     where a door at the robot's width leaves it ten a side."""
-    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    arcs = arc_lengths(path)
     direction = passage.exit - passage.entry
     if float(np.hypot(*direction)) < 1e-6:
         direction = _point_at(path, arcs, passage.exit_arc + 0.1) - _point_at(path, arcs, passage.entry_arc - 0.1)
@@ -562,7 +562,7 @@ def fit_passage(
 def shifted_path(path: NDArray, passage: Passage, moves: NDArray) -> NDArray[np.float64]:
     """``path`` (K, 2) with its passage's entry and exit moved by ``moves`` (2, 2) and the points
     between them left out."""
-    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    arcs = arc_lengths(path)
     ends = np.vstack([passage.entry + moves[0], passage.exit + moves[1]])
     return np.vstack([path[arcs < passage.entry_arc], ends, path[arcs > passage.exit_arc]])
 
@@ -573,14 +573,14 @@ def moved_passage(
     """The path to follow from ``position`` (2,) on, the robot ``progress`` metres along ``path``
     (K, 2), with the passage's ends moved by ``moves`` (2, 2) (``shifted_path``), and the moved
     passage along it (its entry at the robot if the robot is in it already)."""
-    arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    arcs = arc_lengths(path)
     before, after = arcs < passage.entry_arc, arcs > passage.exit_arc
     ends = np.vstack([passage.entry + moves[0], passage.exit + moves[1]])
     points = np.vstack([path[before], ends, path[after]])
     along = np.concatenate([arcs[before], [passage.entry_arc, passage.exit_arc], arcs[after]])
     keep = along > progress
     moved = np.vstack([np.asarray(position, dtype=np.float64)[None, :2], points[keep]])
-    moved_arcs = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(moved, axis=0).T))])
+    moved_arcs = arc_lengths(moved)
     exit_index = int(np.count_nonzero(keep[: int(before.sum()) + 2]))  # moved[0] is the robot
     entry_index = exit_index - 1 if keep[int(before.sum())] else 0
     return moved, Passage(

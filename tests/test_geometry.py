@@ -81,3 +81,11 @@ def test_propagated_covariances_match_sampling():
     assert np.allclose(composed, _sampled_covariance(se2.compose, [a, b], [cov_a, cov_b]), atol=5e-4)
     _, inverted = se2.inverse_with_covariance(a, cov_a)
     assert np.allclose(inverted, _sampled_covariance(se2.inverse, [a], [cov_a]), atol=5e-4)
+
+
+def test_arc_lengths_are_the_running_sum_of_segment_lengths():
+    from navkit.geometry import arc_lengths
+
+    path = np.array([[0.0, 0.0, 9.0], [3.0, 4.0, 9.0], [3.0, 4.0, 9.0], [3.0, 6.0, 9.0]])
+    assert np.allclose(arc_lengths(path), [0.0, 5.0, 5.0, 7.0])
+    assert arc_lengths(path[:1]).tolist() == [0.0]
