@@ -106,24 +106,31 @@ def test_a_slanted_passage_whose_narrow_levels_touch_only_diagonally_is_passed(a
     free = grid.cells == FREE
     squared = grid_search.clearance_squared(free)
     tight = RADIUS + RES / 2
-    levels = [grid_search.passable(squared, r, RES, m) for r, m in ((tight + 0.1, None), (tight, None), (tight, RADIUS))]
+    steps = ((tight + 0.1, None), (tight, None), (tight, RADIUS))  # as GridPlanner builds its known levels
+    levels = [grid_search.passable(squared, r, RES, m) for r, m in steps]
+    least = [min(r, m or r) / RES for r, m in steps]  # cells: the clearance each level asks of its cells
     start, goal = np.array([1.0, 1.0]), np.array([5.0, 5.0])
     start_cell, goal_cell = (tuple(grid.cell_of(p)[0]) for p in (start, goal))
-    # the way exists only along the passage's middle: no level of radius plus half a cell joins the rooms
-    assert all(grid_search.theta_star(mask, start_cell, goal_cell) is None for mask in levels[:2])
-    medial = levels[2]
-    _, parts = cv2.connectedComponents(medial.view(np.uint8), connectivity=4)
-    assert parts[start_cell] == parts[goal_cell]  # as NavTopo's local planner labels the levels before a search
-    cells = grid_search.theta_star(medial, start_cell, goal_cell)
-    assert cells is not None and legal_steps(free, cells)
-    floor = grid_search.bridge_clearance(RADIUS / RES)  # cells: the tolerance passable documents
-    assert np.sqrt(squared[cells[:, 0], cells[:, 1]]).min() >= floor - 1e-9
+    # the way exists only along the passage's middle: no cell of it is the radius plus half a cell
+    # clear all the way (on a slant those clear enough, if any, touch diagonally too)
+    bare_tight = grid_search.clear_of(squared, tight, RES)
+    assert grid_search.theta_star(bare_tight, start_cell, goal_cell) is None
+    for level in (1, 2):
+        _, parts = cv2.connectedComponents(levels[level].view(np.uint8), connectivity=4)
+        joined = parts[start_cell] == parts[goal_cell]  # as NavTopo's local planner labels a level before a search
+        cells = grid_search.theta_star(levels[level], start_cell, goal_cell)
+        assert joined == (cells is not None)
+        if cells is not None:
+            assert legal_steps(free, cells)
+            assert np.sqrt(squared[cells[:, 0], cells[:, 1]]).min() >= grid_search.bridge_clearance(least[level]) - 1e-9
+    assert cells is not None  # the medial level joins them
     occupied = grid.centres(grid.cells == OCCUPIED)
     for planned in (
         plan_path(levels, grid.frame, start, goal),
         GridPlanner(grid, RADIUS, PlanningConfig(unknown_fallback=False)).plan(start, goal, np.zeros((0, 2))),
     ):
-        assert planned is not None and planned.level == 2
+        assert planned is not None and planned.level in (1, 2)
+        floor = grid_search.bridge_clearance(least[planned.level])
         # the centre keeps the bridge's clearance from every wall cell's centre, less between path cells
         # at most the half diagonal of a cell (each point of a segment lies in a passable cell it crosses)
         assert distance_to_polyline(occupied, planned.points).min() >= (floor - SQRT1_2) * RES - 1e-9
