@@ -137,9 +137,10 @@ def bridge_clearance(threshold_cells: float) -> float:
 
     For two such cells a and b, and any non-free cell w, |m - w|^2 = (|a - w|^2 + |b - w|^2) / 2 - 1/2
     at the corner m they share (in cells), so m is at least sqrt(t^2 - 1/2) clear, and each side
-    cell, 1/sqrt(2) from m, at least sqrt(t^2 - 1/2) - 1/sqrt(2): the value returned, about t - 0.74
-    for t = 3 to 6. So for t above one cell every diagonal touch is joined, and never across a
-    wall corner: a non-free side cell would leave m within 1/sqrt(2) of it. On the raster (squared
+    cell, 1/sqrt(2) from m, at least sqrt(t^2 - 1/2) - 1/sqrt(2): the value returned, t less 0.79
+    cell at t = 3, less 0.75 at t = 6. So for t above one cell every diagonal touch is joined, and
+    never across a wall corner: a non-free side cell would leave m within 1/sqrt(2) of it (the
+    robot's centre passed that corner as clear as the two cells). On the raster (squared
     clearances are integers) the side is clearer than this bound: at the benchmark robot's
     0.3 m on 0.1 m cells (t = 3, the medial level) at least sqrt(8) = 2.83 cells, 0.283 m; at
     t = 3.5 (the radius plus half a cell) the same. For t of one cell or less (a level of bare free
@@ -154,7 +155,7 @@ def four_connected(mask: NDArray[np.bool_], squared: NDArray, threshold_cells: f
     mask's cells are assumed at least ``threshold_cells`` clear. What the 8-connected parts of the
     mask were become 4-connected, as the search moves (``_allowed_moves``), so a path between them
     exists and a 4-connected labelling of the mask agrees with it. The bridge cell keeps the robot's
-    centre at most about 0.74 cell nearer a wall cell's centre than the level's threshold (on the
+    centre at most 0.8 cell nearer a wall cell's centre than the level's threshold (t >= 3; on the
     raster at the benchmark's radius 0.17 cell). One pass: a bridge cell's own diagonal touches,
     rare, are not joined. Returns ``mask`` itself when it has no such touch, else a new array."""
     top_left, top_right = mask[:-1, :-1], mask[:-1, 1:]
