@@ -4,8 +4,9 @@ Two kinds of grid per size: a random obstacle field (discs and boxes, ~25 % bloc
 maze (a perfect maze of corridors on a coarse lattice, scaled up), both planned corner to
 corner, the worst case for a search. The first call of each planner compiles or loads the
 numba cache and is not timed. Prints the median wall-clock and the median CPU time of the
-process over --repeats calls; on a shared machine (see the load average printed first) the CPU
-time is the steadier figure.
+process over --repeats calls (the erosion by the robot radius: one call; ``passable``, a
+planner's medial level on a clearance raster made once: --repeats calls); on a shared machine
+(see the load average printed first) the CPU time is the steadier figure.
 
     python benchmarks/bench_grid_search.py --size 1000 3000 --repeats 5
 """
@@ -112,6 +113,11 @@ def main() -> None:
             inflate = partial(grid_search.inflate_free, free, 0.3, 0.05)
             wall, cpu, _ = time_call(inflate, 1)
             print(f"{label:<18}{'':>7}{'inflate':>12}{wall:>9.1f}{cpu:>9.1f}")
+            # a planner's medial level on a transform made once (the metric baseline's third level)
+            squared = grid_search.clearance_squared(free)
+            medial = partial(grid_search.passable, squared, 0.325, 0.05, 0.3)
+            wall, cpu, _ = time_call(medial, args.repeats)
+            print(f"{label:<18}{'':>7}{'passable':>12}{wall:>9.1f}{cpu:>9.1f}")
 
 
 if __name__ == "__main__":

@@ -192,7 +192,8 @@ class UnionGrid:
 
     def mask(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.bool_]:
         """Cells the robot's centre may take: known free (``known``) or not occupied (``unknown``), eroded
-        by ``radius`` (``grid_search.inflate_free``), kept once made. One distance transform a kind
+        by ``radius`` (``grid_search.passable``: ``inflate_free``, with cells that touch only diagonally
+        joined), kept once made. One distance transform a kind
         serves every radius (a first plan asks for two: each its own transform was most of its time);
         it is kept as squared cells in 8 bits, capped at 255 (1.59 m at 0.1 m cells, beyond any
         planning radius; a larger radius gets a transform of its own).
@@ -204,7 +205,8 @@ class UnionGrid:
         if key not in self._masks:
             radius_cells = radius / self.frame.resolution
             if medial is None and radius_cells * radius_cells > CLEARANCE_CAP - 1:
-                self._masks[key] = grid_search.inflate_free(self._free(kind), radius, self.frame.resolution)
+                clearance = grid_search.clearance_squared(self._free(kind))
+                self._masks[key] = grid_search.passable(clearance, radius, self.frame.resolution)
             else:
                 clearance = self._squared(kind)
                 self._masks[key] = grid_search.passable(clearance, radius, self.frame.resolution, medial)
@@ -225,8 +227,10 @@ class UnionGrid:
         return self._clearance[kind]
 
     def fits(self, xy: NDArray, kind: str, radius: float) -> bool:
-        """``mask(kind, radius)`` at the point (2,) (True off the grid), from the cells round it
-        alone: no transform of the whole grid for one cell."""
+        """Whether the point (2,) is ``radius`` clear of the non-free cells of ``kind`` (True off the
+        grid), from the cells round it alone: no transform of the whole grid for one cell. That is
+        ``mask(kind, radius)`` there but for the cells the mask adds where two of its cells touch only
+        diagonally (``grid_search.four_connected``), a little less clear."""
         cell = self.to_cell(np.asarray(xy, dtype=np.float64)[None, :2])[0]
         height, width = self.cells.shape
         if not (0 <= cell[0] < height and 0 <= cell[1] < width):

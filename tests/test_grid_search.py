@@ -265,3 +265,38 @@ def test_nearest_free_moves_a_cell_out_of_the_inflated_zone():
     assert gs.nearest_free(free, (8, 9), 10) == (10, 12)  # the corner, sqrt(13) away
     assert gs.nearest_free(free, (5, 15), 4) is None
     assert gs.nearest_free(free, (25, 25), 10) == (19, 19)  # outside the grid
+
+
+def test_passable_joins_every_diagonal_touch_through_a_clear_free_side_cell():
+    """On random rubble (0.05 m cells, the robot's 0.3 m): what a level's cells joined only by
+    diagonal steps (8-connected), the search's 4-connected moves now join; each cell added for it
+    is free and ``bridge_clearance`` clear. On a level of bare free cells (a radius of one cell)
+    the diagonal touches are wall corners: nothing is added."""
+    from scipy import ndimage
+
+    bridged = corners = 0
+    for seed in range(751, 755):
+        rng = np.random.default_rng(seed)
+        free = ndimage.binary_opening(rng.random((120, 120)) > 0.04, iterations=1)
+        squared = gs.clearance_squared(free)
+        for radius, medial in ((RADIUS + RES / 2, None), (RADIUS + RES / 2, RADIUS), (RES, RES)):
+            bare = gs.clear_of(squared, radius, RES)
+            if medial is not None:
+                bare |= gs.medial_axis(squared) & gs.clear_of(squared, medial, RES)
+            mask = gs.passable(squared, radius, RES, medial)
+            added = mask & ~bare
+            assert (bare <= mask).all() and free[added].all()
+            if radius == RES:
+                corners += int((bare[:-1, :-1] & bare[1:, 1:] & ~bare[:-1, 1:] & ~bare[1:, :-1]).sum())
+                assert not added.any()
+                continue
+            bridged += int(added.sum())
+            least = min(radius, medial or radius) / RES
+            assert (np.sqrt(squared[added]) >= gs.bridge_clearance(least) - 1e-9).all()
+            eight, _ = ndimage.label(bare, np.ones((3, 3), bool))
+            four, _ = ndimage.label(mask)
+            cells = np.flatnonzero(bare)
+            # one 4-connected part of the result for each 8-connected part of the bare level
+            pairs = np.unique(np.stack([eight.ravel()[cells], four.ravel()[cells]]), axis=1)
+            assert len(np.unique(pairs[0])) == pairs.shape[1]
+    assert bridged and corners  # both cases met

@@ -3,16 +3,20 @@ width, as a 0.1 m grid draws them (its jambs a cell into the opening)."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from baselines.metric_grid.config import PlanningConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.planning import GridPlanner
+from navkit import grid_search
 from navkit.geometry import distance_to_polyline
+from navkit.grid_planning import plan_path
 from navkit.raster import FREE, OCCUPIED
 
 RADIUS = 0.3  # the benchmark robot's
+SQRT1_2 = 0.5**0.5
 RES = 0.1
 
 
@@ -61,3 +65,90 @@ def test_a_wide_door_is_passed_with_the_margin_first():
     planner = GridPlanner(grid, RADIUS, PlanningConfig(unknown_fallback=False))
     planned = planner.plan(np.array([2.0, 1.0]), np.array([6.0, 3.0]), np.zeros((0, 2)))
     assert planned is not None and planned.level == 0
+
+
+# ---------------------------------------------------------------------------------------------
+# a passage on a slant: its narrow levels joined only diagonally (grid_search.passable's bridges)
+
+
+def slanted_passage(angle_deg: float, width: float = 0.66) -> GridMap:
+    """Two 1.8 m square rooms (x, y 0.2-2.0 m and 4.0-5.8 m) joined by a straight passage ``width``
+    wide through (3, 3) m at ``angle_deg`` to the x axis, drawn as a map draws shapes (a cell is free
+    iff its centre is in free space). 0.66 m is between the medial level (0.6 m between the wall
+    cells' centres) and the tight one (0.8 m): on a slant the passage's medial axis, and the few
+    cells of it that are clear enough, step diagonally from cell to cell."""
+    rows, cols = np.mgrid[:60, :60]
+    x, y = (cols + 0.5) * RES, (rows + 0.5) * RES
+    free = np.zeros((60, 60), bool)
+    free[2:20, 2:20] = free[40:58, 40:58] = True
+    heading = np.radians(angle_deg)
+    px, py = x - 3.0, y - 3.0
+    across = np.abs(-np.sin(heading) * px + np.cos(heading) * py)
+    along = np.cos(heading) * px + np.sin(heading) * py
+    free |= (across <= width / 2) & (np.abs(along) < 2.2)
+    return GridMap(np.where(free, FREE, OCCUPIED).astype(np.uint8), np.zeros(2), RES)
+
+
+def legal_steps(free: np.ndarray, cells: np.ndarray) -> bool:
+    """Every segment of a cell path crosses only free cells of ``free``, and none passes through a
+    grid corner beside a non-free cell (``grid_search.line_of_sight``: no corner cut)."""
+    return all(grid_search.line_of_sight(free, a, b) for a, b in zip(cells[:-1], cells[1:], strict=True))
+
+
+@pytest.mark.parametrize("angle", [30.0, 36.0, 45.0, 54.0, 60.0])
+def test_a_slanted_passage_whose_narrow_levels_touch_only_diagonally_is_passed(angle):
+    """The noisy ring's no_path (BENCHMARKS.md, slam-ring noisy): the medial level's cells along a
+    slanted passage are 8-connected but not 4-connected, and the search, which never cuts a corner,
+    could not walk along them. ``grid_search.passable`` bridges each diagonal-only touch with its
+    clearer side cell; the path stays legal on the raw free space and keeps, at every cell and
+    between cells, the level's clearance less the documented tolerance (``passable``)."""
+    grid = slanted_passage(angle)
+    free = grid.cells == FREE
+    squared = grid_search.clearance_squared(free)
+    tight = RADIUS + RES / 2
+    steps = ((tight + 0.1, None), (tight, None), (tight, RADIUS))  # as GridPlanner builds its known levels
+    levels = [grid_search.passable(squared, r, RES, m) for r, m in steps]
+    least = [min(r, m or r) / RES for r, m in steps]  # cells: the clearance each level asks of its cells
+    start, goal = np.array([1.0, 1.0]), np.array([5.0, 5.0])
+    start_cell, goal_cell = (tuple(grid.cell_of(p)[0]) for p in (start, goal))
+    # the way exists only along the passage's middle: no cell of it is the radius plus half a cell
+    # clear all the way (on a slant those clear enough, if any, touch diagonally too)
+    bare_tight = grid_search.clear_of(squared, tight, RES)
+    assert grid_search.theta_star(bare_tight, start_cell, goal_cell) is None
+    for level in (1, 2):
+        _, parts = cv2.connectedComponents(levels[level].view(np.uint8), connectivity=4)
+        joined = parts[start_cell] == parts[goal_cell]  # as NavTopo's local planner labels a level before a search
+        cells = grid_search.theta_star(levels[level], start_cell, goal_cell)
+        assert joined == (cells is not None)
+        if cells is not None:
+            assert legal_steps(free, cells)
+            assert np.sqrt(squared[cells[:, 0], cells[:, 1]]).min() >= grid_search.bridge_clearance(least[level]) - 1e-9
+    assert cells is not None  # the medial level joins them
+    occupied = grid.centres(grid.cells == OCCUPIED)
+    for planned in (
+        plan_path(levels, grid.frame, start, goal),
+        GridPlanner(grid, RADIUS, PlanningConfig(unknown_fallback=False)).plan(start, goal, np.zeros((0, 2))),
+    ):
+        assert planned is not None and planned.level in (1, 2)
+        floor = grid_search.bridge_clearance(least[planned.level])
+        # the centre keeps the bridge's clearance from every wall cell's centre, less between path cells
+        # at most the half diagonal of a cell (each point of a segment lies in a passable cell it crosses)
+        assert distance_to_polyline(occupied, planned.points).min() >= (floor - SQRT1_2) * RES - 1e-9
+
+
+def test_free_space_that_meets_only_at_a_wall_corner_is_not_joined():
+    """Two rooms of the raw map that meet only at the corner of an occupied cell (a diagonal touch
+    whose two side cells are walls): no bridge, at any level, even one that keeps the robot's
+    centre a single cell from the walls (where the rooms' corner cells are passable)."""
+    cells = np.full((20, 20), OCCUPIED, np.uint8)
+    cells[1:10, 1:10] = FREE
+    cells[10:19, 10:19] = FREE  # (9, 9) and (10, 10) touch at a corner; (9, 10) and (10, 9) are walls
+    grid = GridMap(cells, np.zeros(2), RES)
+    free = cells == FREE
+    squared = grid_search.clearance_squared(free)
+    for radius in (RES / 2, RES):
+        mask = grid_search.passable(squared, radius, RES, radius)
+        assert mask[9, 9] and mask[10, 10] and not mask[9, 10] and not mask[10, 9]
+        assert grid_search.theta_star(mask, (5, 5), (14, 14)) is None
+    planner = GridPlanner(grid, RADIUS, PlanningConfig(unknown_fallback=False))
+    assert planner.plan(np.array([0.5, 0.5]), np.array([1.5, 1.5]), np.zeros((0, 2))) is None

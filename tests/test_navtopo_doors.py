@@ -5,7 +5,8 @@ location on each side, the robot (0.6 m wide) seen at any heading to the walls.
 A scan draws a jamb into the cell its returns fall in, a cell the door may mostly lie in: a 0.8 m
 door keeps 6-7 free cells between its jambs' cells, and at a slant to the grid a staircase of them.
 The margin rule (the robot's centre at least its radius plus half a cell from every wall cell's
-centre) then finds no way through most such doors; the union grid turned along the walls and the
+centre) then finds no way through most such doors (at 0.8 m, with the cells of a staircase that
+touch only diagonally joined, through some); the union grid turned along the walls and the
 passage's medial axis do, and the scan's returns, exact where the cells are not, put the way
 through the door's middle or shut a gap the robot does not fit."""
 
@@ -146,8 +147,12 @@ def test_a_door_at_the_robots_width_is_passed_through_its_middle(width):
         assert clearance >= RADIUS + MARGIN, (width, heading, clearance)
         moved = shifted_path(planned.points, passage, moves)
         assert true_clearance(moved, poses[0], walls) >= RADIUS + 0.03, (width, heading)
-    if width < 0.85:
-        assert missed_by_the_margin_rule >= len(headings) // 2  # why the medial axis is there
+    # why the medial axis is there: the margin rule misses most doors of 0.75 m; at 0.8 m, since the
+    # cells of a level that touch only diagonally are joined, it misses the door at 20 degrees alone
+    if width < 0.8:
+        assert missed_by_the_margin_rule >= len(headings) // 2
+    elif width < 0.85:
+        assert missed_by_the_margin_rule >= 1
 
 
 @pytest.mark.parametrize("width", [0.5, 0.6, 0.65])

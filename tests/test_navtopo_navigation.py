@@ -93,9 +93,10 @@ def test_the_union_grid_of_two_locations_lines_up_with_ground_truth(tiny):
 
 
 def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_space():
-    """One clearance transform a kind serves every radius: each mask is ``inflate_free`` of that
-    kind's free cells, and ``fits`` at a point (from the cells round it) is the mask there."""
-    from navkit.grid_search import inflate_free
+    """One clearance transform a kind serves every radius: each mask is ``passable`` on that kind's
+    free cells (``inflate_free``, cells that touch only diagonally joined), and ``fits`` at a point
+    (from the cells round it) is ``inflate_free`` there."""
+    from navkit.grid_search import clearance_squared, inflate_free, passable
     from navkit.raster import GridFrame
     from navtopo.planning import UnionGrid
 
@@ -106,10 +107,10 @@ def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_spac
     for kind, free in (("known", cells == FREE), ("unknown", cells != OCCUPIED)):
         for radius in (0.05, 0.25, 0.3, 0.45, 1.7):  # the last one past the 8-bit clearance's cap
             mask = union.mask(kind, radius)
-            assert np.array_equal(mask, inflate_free(free, radius, 0.1))
+            assert np.array_equal(mask, passable(clearance_squared(free), radius, 0.1))
             xy = union.frame.to_world(np.stack([rng.integers(-3, 63, 300), rng.integers(-3, 83, 300)], axis=1))
             xy += rng.uniform(-0.04, 0.04, xy.shape)
-            expected = union.values_at(xy, mask, True)
+            expected = union.values_at(xy, inflate_free(free, radius, 0.1), True)
             assert [union.fits(p, kind, radius) for p in xy] == expected.tolist()
     assert union.mask("known", 0.3).any()
 
