@@ -77,7 +77,7 @@ def hypotheses_seen(nav, anchors, truth: np.ndarray) -> str:
     for h in nav.startup.hypotheses:
         anchor = anchors.poses.get(round(float(nav.graph.vertices[h.vertex].stamp), 6))
         off = np.hypot(*(se2.compose(anchor, h.pose)[:2] - truth[:2])) if anchor is not None else np.nan
-        seen.append(f"v{h.vertex}:s{h.support}:p{len(h.places)}:{off:.1f}m")
+        seen.append(f"v{h.vertex}:s{h.support}:p{len(h.places)}:c{h.contradicted}:{off:.1f}m")
     return f"looks={nav.startup.looks} [{' '.join(seen)}]"
 
 

@@ -58,17 +58,18 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.ndimage import maximum_filter1d
 
 from navkit.follower import PathFollower
 from navkit.geometry import between, compose, distance_to_polyline, transform_points
 from navkit.grid_planning import plan_path
 from navkit.grid_search import inflate_free
-from navkit.raster import FREE, OCCUPIED, GridFrame, inside
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navkit.scan import obstacle_points
 from navkit.types import Command, Observation
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.mapping import GraphMaintainer, moved_enough
-from navtopo.planning import LocalPlanner
+from navtopo.planning import LocalPlanner, UnionGrid, build_union_grid
 from navtopo.scan_matching import PreparedGrid, prepare
 
 
@@ -107,6 +108,21 @@ class StartupConfig(BaseModel):
     same_place_in_map: float = Field(
         1.5, gt=0, description="m: ... or this close by the locations' map poses, where the graph does not join them"
     )
+    far_evidence: bool = Field(
+        True,
+        description="weigh the hypotheses by the scan's beams against each one's map beyond the matcher's verdict (see "
+        "``beam_contradictions``)",
+    )
+    far_tolerance: float = Field(
+        0.5, gt=0, description="m a beam must run past a mapped wall (or end clear of one) to contradict"
+    )
+    far_margin: int = Field(
+        12, ge=1, description="contradicted beams beyond the fewest among the hypotheses that count a look against one ..."
+    )
+    far_margin_share: float = Field(0.03, ge=0, le=1, description="... or this share of the beams, if more")
+    union_radius: float = Field(20.0, gt=0, description="m: half the side of a hypothesis's map (its location and neighbours)")
+    ambiguous_looks: int = Field(8, ge=1, description="looks after which equally supported rivals make the robot explore ...")
+    ambiguous_support: int = Field(2, ge=0, description="... 'equally': the two best supports this close")
     explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
     timeout: float = Field(60.0, gt=0, description="s of simulated time without a commitment: not_localized")
 
@@ -123,6 +139,7 @@ class Hypothesis:
     places: set[int] = field(default_factory=set)  # the locations it was verified in
     alone_since: float | None = None  # the start-up odometer when its last rival fell (None: rivals live)
     alone_support: int = 0  # looks that verified it since then
+    contradicted: int = 0  # the scan's beams its map contradicted at the last look weighed by the far evidence
 
     @property
     def vertex(self) -> int:
@@ -158,6 +175,67 @@ class Localization:
         }
 
 
+WALL_WIDTH_M = 0.3  # a wall the far evidence counts a beam through is at least this wide across the beam
+
+
+def scan_beams(points: NDArray, band: GridConfig, step_deg: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The scan as beams: the nearest obstacle return in each ``step_deg`` of azimuth, (angles,
+    ranges) in the robot frame, for the bins that have one (a bin without a return says nothing)."""
+    xy = np.asarray(obstacle_points(points, band)[:, :2], dtype=np.float64)
+    ranges = np.hypot(xy[:, 0], xy[:, 1])
+    xy, ranges = xy[ranges > 0.05], ranges[ranges > 0.05]
+    if not len(ranges):
+        return np.zeros(0), np.zeros(0)
+    angles = np.arctan2(xy[:, 1], xy[:, 0])
+    bins = np.rint((angles + np.pi) / np.radians(step_deg)).astype(np.int64)  # a lidar step apart: one a bin
+    order = np.lexsort((ranges, bins))
+    first = order[np.r_[True, bins[order][1:] != bins[order][:-1]]]
+    return angles[first], ranges[first]
+
+
+def beam_contradictions(union: UnionGrid, pose: NDArray, angles: NDArray, ranges: NDArray, tolerance: float) -> int:
+    """How many of the scan's beams (``scan_beams``) contradict the map ``union`` (a location's
+    grid and its neighbours', ``planning.build_union_grid`` unturned) with the robot at ``pose`` in
+    the location's frame:
+
+    * *through a wall*: the beam crosses a mapped wall and runs on at least ``tolerance`` beyond it
+      (the scan sees open floor where the map has a wall). Only a crossing counts: a wall cell
+      followed ``tolerance`` further on by one that is not a wall, with wall cells
+      ``WALL_WIDTH_M / 2`` to either side of the beam there (a beam along a wall at a grazing angle,
+      or past the end of a door's jamb a few centimetres off, has free space to one side);
+    * *a phantom return*: the return lies in mapped free space at least ``tolerance`` from every
+      mapped wall (the scan sees a wall where the map has open floor).
+
+    Unknown cells contradict nothing. Scan matching verifies a place by the agreement of walls
+    within its grid, a few per cent of them allowed to disagree; two look-alike places along a
+    corridor of identical rooms differ by the few beams that reach the corridor's end, which this
+    counts."""
+    if not len(ranges):
+        return 0
+    res = union.frame.resolution
+    steps = np.arange(0.3, float(ranges.max()) + res, res)
+    offset = max(1, int(round(tolerance / res)))
+    direction = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    across = np.stack([-direction[:, 1], direction[:, 0]], axis=1) * WALL_WIDTH_M / 2
+    points = direction[:, None, :] * steps[None, :, None]  # (B, S, 2)
+
+    def wall_at(shift: NDArray) -> NDArray[np.bool_]:
+        xy = transform_points(pose, (points + shift[:, None, :]).reshape(-1, 2))
+        return union.values_at(xy, union.cells, UNKNOWN).reshape(points.shape[:2]) == OCCUPIED
+
+    wall = wall_at(np.zeros_like(across))
+    # a wall, not the end of a door's jamb or a wall the beam runs along: walls on both sides of the
+    # beam too, within two samples along it (a wall crossed at a slant)
+    sides = [maximum_filter1d(wall_at(side), size=5, axis=1) for side in (across, -across)]
+    crossing = wall & sides[0] & sides[1]
+    before = steps[None, :-offset] <= (ranges[:, None] - tolerance)  # a sample with `tolerance` of the beam beyond it
+    through = (crossing[:, :-offset] & ~wall[:, offset:] & before).any(axis=1)
+    ends = transform_points(pose, direction * ranges[:, None])
+    open_floor = union.values_at(ends, union.cells, UNKNOWN) == FREE
+    phantom = open_floor & (union.values_at(ends, union.wall_distance, np.float32(0.0)) >= tolerance)
+    return int(np.count_nonzero(through | phantom))
+
+
 class Startup:
     """Hypotheses of where the robot starts, looked for and confirmed over motion."""
 
@@ -180,6 +258,10 @@ class Startup:
         self._perceived: tuple[float, PreparedGrid, NDArray[np.float32]] | None = None  # (stamp, query, descriptor)
         self.seen = 0
         self.checks = 0
+        self._unions: dict[int, UnionGrid] = {}  # the hypotheses' maps, for the far evidence
+        self._beams: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None  # (stamp, angles, ranges)
+        self.far_dropped = 0  # looks that counted against a hypothesis by the far evidence alone
+        self.far_refused = 0  # verified candidates not made hypotheses by it
 
     def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
         m = self.maintainer
@@ -229,24 +311,27 @@ class Startup:
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
             if not h.tracker.last_verified:
                 self._relocate(h, self._perceive(obs)[0], obs.odom)
-        self._weigh()
+        self._weigh(self._far_against(obs))
         alone = len(self.hypotheses) == 1
         check_all = self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0
         self._recognise(obs, check_all)
 
-    def _weigh(self) -> None:
-        """This look's evidence: support for the hypotheses it verified; against the others only if
-        it verified one; the dropped ones gone; the survivor's time alone."""
+    def _weigh(self, far: list[bool] | None = None) -> None:
+        """This look's evidence: support for the hypotheses it verified and the far evidence does
+        not count against (``far``); against the others only if it verified one, or by the far
+        evidence; the dropped ones gone; the survivor's time alone."""
         verified = [h.tracker.last_verified for h in self.hypotheses]
         telling = any(verified)
-        for h, ok in zip(self.hypotheses, verified, strict=True):
-            if ok:
+        far = far if far is not None else [False] * len(verified)
+        for h, ok, against in zip(self.hypotheses, verified, far, strict=True):
+            if ok and not against:
                 h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
                 h.places.add(h.vertex)
                 h.alone_support += int(h.alone_since is not None)
             else:
-                h.misses += int(telling)
-                h.unverified += 1
+                h.misses += int(telling or against)
+                h.unverified += int(not ok)
+                self.far_dropped += int(against)
         config = self.config
         self.hypotheses = [h for h in self.hypotheses if h.misses < config.drop_after and h.unverified < config.drop_unverified]
         if len(self.hypotheses) == 1 and self.hypotheses[0].alone_since is None:
@@ -262,8 +347,18 @@ class Startup:
             self.checks += 1
         top_k = len(m.graph) if check_all else self.config.top_k
         found = m.localizer.localize(query, descriptor, top_k=top_k)
+        new = [loc for loc in found if not any(self._same_place(h, loc.vertex, loc.pose) for h in self.hypotheses)]
+        if self.config.far_evidence and new and len(self.hypotheses) + len(new) > 1:
+            # a place the far evidence counts against at this look is not made a hypothesis (it
+            # would come back at every look and keep a rival alive)
+            counts = self._far_counts(
+                obs, [(h.vertex, h.pose) for h in self.hypotheses] + [(loc.vertex, loc.pose) for loc in new]
+            )
+            keep = ~self._far_outliers(obs, counts)[len(self.hypotheses) :]
+            self.far_refused += int(np.count_nonzero(~keep))
+            new = [loc for loc, kept in zip(new, keep, strict=True) if kept]
         added = 0
-        for located in found:
+        for located in new:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 tracker.last_verified = True  # this look verified it
@@ -274,6 +369,43 @@ class Startup:
         for h in self.hypotheses if added else []:  # a new rival: nobody is alone; a first find: alone from now
             h.alone_since, h.alone_support = alone, 1 if alone is not None else 0
         return added
+
+    def _far_against(self, obs: Observation) -> list[bool]:
+        """For each live hypothesis: does the far evidence count this look against it? Among rivals
+        only: a hypothesis whose map the scan's beams contradict (``beam_contradictions``) at
+        ``far_margin`` beams (or ``far_margin_share`` of them) more than the least contradicted one's.
+        The right place and its exact look-alikes agree within the matcher's grid; the beams that
+        reach farther (a corridor's end, a junction) tell them apart."""
+        if not self.config.far_evidence or len(self.hypotheses) < 2:
+            self._unions.clear()
+            return [False] * len(self.hypotheses)
+        counts = self._far_counts(obs, [(h.vertex, h.pose) for h in self.hypotheses])
+        for h, count in zip(self.hypotheses, counts, strict=True):
+            h.contradicted = int(count)
+        in_use = {h.vertex for h in self.hypotheses}
+        self._unions = {v: u for v, u in self._unions.items() if v in in_use}
+        return [bool(x) for x in self._far_outliers(obs, counts)]
+
+    def _far_counts(self, obs: Observation, places: list[tuple[int, NDArray]]) -> NDArray[np.int64]:
+        if self._beams is None or self._beams[0] != obs.stamp:
+            self._beams = (obs.stamp, *scan_beams(obs.points, self.maintainer.grid_config))
+        _, angles, ranges = self._beams
+        return np.array(
+            [beam_contradictions(self._union(v), pose, angles, ranges, self.config.far_tolerance) for v, pose in places]
+        )
+
+    def _far_outliers(self, obs: Observation, counts: NDArray[np.int64]) -> NDArray[np.bool_]:
+        assert self._beams is not None and self._beams[0] == obs.stamp
+        margin = max(self.config.far_margin, self.config.far_margin_share * len(self._beams[2]))
+        return counts >= counts.min() + margin
+
+    def _union(self, vertex: int) -> UnionGrid:
+        union = self._unions.get(vertex)
+        if union is None:
+            m = self.maintainer
+            union = build_union_grid(m.graph, vertex, m.grid_config, self.config.union_radius, align=False)
+            self._unions[vertex] = union
+        return union
 
     def _perceive(self, obs: Observation) -> tuple[PreparedGrid, NDArray[np.float32]]:
         """The look's scan prepared for matching, and its descriptor (once a look, though asked twice)."""
@@ -347,6 +479,17 @@ class Startup:
     def odometer(self) -> float:
         """Metres of odometry since the start-up began."""
         return self._odometer
+
+    def ambiguous(self) -> bool:
+        """Two or more hypotheses equally supported (within ``ambiguous_support`` looks) after
+        ``ambiguous_looks`` looks: exact look-alikes, which driving by one of them toward the goal
+        need never tell apart (along a corridor of identical rooms it may stop between them); the
+        robot explores instead, away from where it has driven, toward a corridor's end or a
+        junction, which the far evidence tells apart."""
+        if len(self.hypotheses) < 2:
+            return False
+        first, second = sorted((h.support for h in self.hypotheses), reverse=True)[:2]
+        return first >= self.config.ambiguous_looks and first - second <= self.config.ambiguous_support
 
     def best(self) -> Hypothesis | None:
         """The hypothesis to drive by while none is committed: most supported."""
