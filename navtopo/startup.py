@@ -26,6 +26,13 @@ locations, in a corridor that fixes the pose along it poorly, the matcher refuse
 meanwhile every location is checked once a metre, and a place verified elsewhere becomes a rival
 that the next looks weigh.
 
+The far evidence. The matcher lets a few per cent of a grid's walls disagree, and along a corridor of
+identical rooms the places a room apart differ by fewer: by the beams that reach the corridor's end.
+So among rivals each look also counts the scan's beams each hypothesis's map contradicts
+(``beam_contradictions``), and counts the look against a hypothesis with ``far_margin`` more than the
+least contradicted one; a verified candidate so contradicted is not made a hypothesis (it would come
+back at every look and keep a rival alive).
+
 The commitment rule, as a test. Commit to ``h`` only when all of these hold:
   1. ``h`` is the only hypothesis left, and the look that commits verified it;
   2. it has been verified at ``confirm_looks`` looks and survived ``confirm_distance`` metres, and
@@ -41,7 +48,8 @@ fails with ``not_localized``: a wrong localization is worse than none.
 
 Moving meanwhile. The navigator (``navtopo.navigation``) drives toward the goal as the best
 hypothesis sees it (so confirmation costs no detour when the best is right), or, with no hypothesis
-(or none that gets anywhere), the ``Explorer`` moves in the robot's own scan toward the free point
+(or none that gets anywhere, or look-alikes as well supported as the best: ``ambiguous``), the
+``Explorer`` moves in the robot's own scan toward the free point
 farthest from where it has driven (out of a room through its door rather than round it again).
 Both are blind moves — a path in one scan's grid, or in a map that may be another place's — so
 both are checked against every new scan (``Explorer.scan_on_path``).
