@@ -31,7 +31,9 @@ identical rooms the places a room apart differ by fewer: by the beams that reach
 So among rivals each look also counts the scan's beams each hypothesis's map contradicts
 (``beam_contradictions``), and counts the look against a hypothesis with ``far_margin`` more than the
 least contradicted one; a verified candidate so contradicted is not made a hypothesis (it would come
-back at every look and keep a rival alive).
+back at every look and keep a rival alive). Nor is one, found while others have been followed, that
+explains the last ``far_history`` looks (kept one a metre) worse than they do: a look-alike ruled out
+at a corridor's end is found again in the next identical room, where no beam reaches the end.
 
 The commitment rule, as a test. Commit to ``h`` only when all of these hold:
   1. ``h`` is the only hypothesis left, and the look that commits verified it;
@@ -61,6 +63,7 @@ odometry frame.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -125,14 +128,20 @@ class StartupConfig(BaseModel):
         0.5, gt=0, description="m a beam must run past a mapped wall (or end clear of one) to contradict"
     )
     far_margin: int = Field(
-        12, ge=1, description="contradicted beams beyond the fewest among the hypotheses that count a look against one ..."
+        6, ge=1, description="contradicted beams beyond the fewest among the hypotheses that count a look against one ..."
     )
-    far_margin_share: float = Field(0.03, ge=0, le=1, description="... or this share of the beams, if more")
+    far_margin_share: float = Field(0.015, ge=0, le=1, description="... or this share of the beams, if more")
     union_radius: float = Field(20.0, gt=0, description="m: half the side of a hypothesis's map (its location and neighbours)")
+    far_history: int = Field(
+        8,
+        ge=0,
+        description="earlier looks (one a metre, beams 2° apart) a place found while others live must explain: refused "
+        "with twice far_margin more contradicted beams in all than the least",
+    )
     ambiguous_looks: int = Field(8, ge=1, description="looks after which equally supported rivals make the robot explore ...")
     ambiguous_support: int = Field(2, ge=0, description="... 'equally': the two best supports this close")
     explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
-    timeout: float = Field(60.0, gt=0, description="s of simulated time without a commitment: not_localized")
+    timeout: float = Field(90.0, gt=0, description="s of simulated time without a commitment: not_localized")
 
 
 @dataclass
@@ -183,6 +192,7 @@ class Localization:
         }
 
 
+FAR_LOOK_M = 10.0  # m: how far along each direction an exploring move weighs the new ground the scan shows
 WALL_WIDTH_M = 0.3  # a wall the far evidence counts a beam through is at least this wide across the beam
 
 
@@ -268,6 +278,11 @@ class Startup:
         self.checks = 0
         self._unions: dict[int, UnionGrid] = {}  # the hypotheses' maps, for the far evidence
         self._beams: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None  # (stamp, angles, ranges)
+        # earlier looks' beams (odometry, angles, ranges), one a metre: what a place found late must explain too
+        self._history: deque[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=self.config.far_history
+        )
+        self._history_at = -np.inf  # the odometer at the last look kept
         self.far_dropped = 0  # looks that counted against a hypothesis by the far evidence alone
         self.far_refused = 0  # verified candidates not made hypotheses by it
 
@@ -301,6 +316,9 @@ class Startup:
         self._last_look_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         self.looks += 1
         self._look(obs, driven, route)
+        if self.config.far_evidence and self._odometer >= self._history_at + 1.0:
+            self._history_at = self._odometer
+            self._history.append((self._last_odom.copy(), *scan_beams(obs.points, self.maintainer.grid_config, 2.0)))
         committed = self._committed()
         if committed is not None and self.config.check_all and self._odometer > self._checked_at:
             # place recognition may rank the right location low (a look-alike ranked above it, 29 m
@@ -359,10 +377,18 @@ class Startup:
         if self.config.far_evidence and new and len(self.hypotheses) + len(new) > 1:
             # a place the far evidence counts against at this look is not made a hypothesis (it
             # would come back at every look and keep a rival alive)
-            counts = self._far_counts(
-                obs, [(h.vertex, h.pose) for h in self.hypotheses] + [(loc.vertex, loc.pose) for loc in new]
-            )
-            keep = ~self._far_outliers(obs, counts)[len(self.hypotheses) :]
+            places = [(h.vertex, h.pose) for h in self.hypotheses] + [(loc.vertex, loc.pose) for loc in new]
+            keep = ~self._far_outliers(obs, self._far_counts(obs, places))[len(self.hypotheses) :]
+            if self.hypotheses and self._history and keep.any():
+                # a place found now while others have been followed for a while must explain the
+                # robot's earlier looks as well as they do: a look-alike the far evidence ruled out
+                # a few metres back is found again as soon as the beams no longer reach what told
+                # them apart (inside the next identical room), and would keep a rival alive for good
+                live = len(self.hypotheses)
+                later = [i for i in range(len(new)) if keep[i]]
+                replayed = self._replayed(obs, places[:live] + [places[live + i] for i in later])
+                refused = replayed[live:] >= replayed.min() + 2 * self.config.far_margin
+                keep[[i for i, r in zip(later, refused, strict=True) if r]] = False
             self.far_refused += int(np.count_nonzero(~keep))
             new = [loc for loc, kept in zip(new, keep, strict=True) if kept]
         added = 0
@@ -401,6 +427,19 @@ class Startup:
         return np.array(
             [beam_contradictions(self._union(v), pose, angles, ranges, self.config.far_tolerance) for v, pose in places]
         )
+
+    def _replayed(self, obs: Observation, places: list[tuple[int, NDArray]]) -> NDArray[np.int64]:
+        """For each place (vertex, the robot's pose in it now): the beams of the kept earlier looks
+        (``far_history``, one a metre) its map contradicts, the robot carried back to each by odometry."""
+        now = np.asarray(obs.odom, dtype=np.float64)
+        totals = np.zeros(len(places), np.int64)
+        for odom, angles, ranges in self._history:
+            back = between(now, odom)  # the earlier pose in the current robot frame
+            for k, (vertex, pose) in enumerate(places):
+                totals[k] += beam_contradictions(
+                    self._union(vertex), compose(pose, back), angles, ranges, self.config.far_tolerance
+                )
+        return totals
 
     def _far_outliers(self, obs: Observation, counts: NDArray[np.int64]) -> NDArray[np.bool_]:
         assert self._beams is not None and self._beams[0] == obs.stamp
@@ -594,8 +633,13 @@ class Explorer:
 
     def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
         """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or
-        twice, or half that) away, the one farthest from where the start-up has already driven (the
-        way out of a room leads through its door, not round the room again), forward first on ties."""
+        twice, or half that) away, the one in the direction whose free ground, as far as the scan
+        shows it within ``FAR_LOOK_M``, lies farthest from where the start-up has already driven;
+        on ties, the point itself farthest from it, then forward. The way out of a room leads
+        through its door, not round the room again (judged by the points within reach alone, a room
+        toured left nothing new, and the explorer went round it for 40 s), and along a corridor
+        onward rather than into the next room (on a wing of identical rooms only the corridor's
+        ends tell the places apart)."""
         grid_config = self.grid_config
         grid = grid_from_points(obs.points, grid_config)
         # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
@@ -622,14 +666,29 @@ class Explorer:
             return None
         trail = np.array(self.trail) if self.trail else np.zeros((0, 2))
         odom = np.asarray(obs.odom, dtype=np.float64)
-        in_odom = transform_points(odom, ends[ok])
-        novelty = (
-            np.min(np.hypot(*(in_odom[:, None, :] - trail[None, :, :]).transpose(2, 0, 1)), axis=1)
-            if len(trail)
-            else np.zeros(len(ok))
-        )
+
+        def novelty(points: NDArray) -> NDArray[np.float64]:  # (N, 2) robot frame -> m from the trail
+            if not len(trail):
+                return np.zeros(len(points))
+            in_odom = transform_points(odom, points)
+            return np.min(np.hypot(*(in_odom[:, None, :] - trail[None, :, :]).transpose(2, 0, 1)), axis=1)
+
+        # what lies beyond: the newest ground the scan shows free along each direction (a room
+        # toured leaves no new ground within reach, but the corridor seen through its door does)
+        steps = np.arange(0.5, FAR_LOOK_M + 0.25, 0.5)
+        along = directions[:, None, :] * steps[None, :, None]  # (directions, steps, 2)
+        samples = frame.to_cell(along.reshape(-1, 2))
+        on = inside(samples, grid.shape)
+        free = np.zeros(len(samples), bool)
+        free[on] = grid[samples[on, 0], samples[on, 1]] == FREE
+        free = np.logical_and.accumulate(free.reshape(along.shape[:2]), axis=1)  # up to the first cell not seen free
+        beyond = np.where(free, novelty(along.reshape(-1, 2)).reshape(free.shape), 0.0).max(axis=1)
+        near = novelty(ends[ok])
+        far = np.tile(beyond, 3)[ok]
         forward = np.cos(np.tile(angles, 3))[ok]
-        order = np.lexsort((-forward, -np.round(novelty / 0.5)))  # novelty in 0.5 m steps, then forward
+        # the newest ground along the direction in 1 m steps, then the end's novelty in 0.5 m
+        # steps, then forward
+        order = np.lexsort((-forward, -np.round(near / 0.5), -np.round(far)))
         for k in ok[order][:8]:
             planned = plan_path(masks, frame, np.zeros(2), ends[k], snap_cells=5)
             if planned is not None:

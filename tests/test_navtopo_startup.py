@@ -17,8 +17,8 @@ from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
-from navtopo.scan_matching import MatchingConfig
 from navtopo.planning import UnionGrid
+from navtopo.scan_matching import MatchingConfig
 from navtopo.startup import Hypothesis, Startup, StartupConfig, beam_contradictions, scan_beams
 from runners.sim import Simulator
 from scenarios.scenario import build_scenario
