@@ -120,6 +120,22 @@ def test_beams_contradict_a_look_alike_along_a_corridor_and_not_the_right_place(
     assert beam_contradictions(union, np.array([2.0, 0.0, 0.0]), angles, ranges, 0.5) >= 12
 
 
+def test_a_place_found_late_must_explain_the_earlier_looks_carried_back_by_odometry():
+    """The robot saw the corridor's end from 4-6 m before it (three looks kept), then drove back to
+    x = -6 m: there a look-alike 4 m along matches the last scan about as well as the right place, but
+    the earlier looks, carried back by odometry, contradict it and not the right place."""
+    startup = Startup(SimpleNamespace(grid_config=GRID), None, StartupConfig())  # type: ignore[arg-type]
+    startup._unions = {0: _corridor_map()}
+    for x in (4.0, 5.0, 6.0):
+        startup._history.append((np.array([x, 0.0, 0.0]), *scan_beams(_corridor_scan(x), GRID, 2.0)))
+    now = SimpleNamespace(odom=np.array([-6.0, 0.0, 0.0]))
+    right, shifted, back = startup._replayed(
+        now, [(0, np.array([-6.0, 0.0, 0.0])), (0, np.array([-2.0, 0.0, 0.0])), (0, np.array([-10.0, 0.0, 0.0]))]
+    )  # type: ignore[arg-type]
+    assert right == 0
+    assert shifted >= 2 * startup.config.far_margin and back >= 2 * startup.config.far_margin
+
+
 def test_the_far_evidence_counts_against_the_contradicted_hypothesis_only():
     startup, (right, shifted) = _bookkeeping(2)
     for _ in range(2):
