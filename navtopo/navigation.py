@@ -273,7 +273,10 @@ class Navigator:
         odometer = startup.odometer
         if explorer.under_way(odometer):
             return explorer.step(obs, self.counters)  # an exploring move runs to its end
-        if best is not None and not startup.ambiguous() and not explorer.no_progress(obs.stamp, odometer):
+        # look-alikes make the robot explore, but not from a doorway: an exploring move planned
+        # from inside one turned on the spot and cut the jamb (on a held-out wing)
+        ambiguous = startup.ambiguous() and explorer.roomy(obs)
+        if best is not None and not ambiguous and not explorer.no_progress(obs.stamp, odometer):
             # drive as the best hypothesis sees it: confirmation on the way
             if best is not self._tentative or explorer.move is not None:
                 self._tentative, self._path_vertex, self._route = best, None, None

@@ -192,6 +192,7 @@ class Localization:
         }
 
 
+ROOMY_M = 0.3  # m beyond the robot's radius free all round: an exploring move among look-alikes may begin
 FAR_LOOK_M = 10.0  # m: how far along each direction an exploring move weighs the new ground the scan shows
 WALL_WIDTH_M = 0.3  # a wall the far evidence counts a beam through is at least this wide across the beam
 
@@ -582,6 +583,14 @@ class Explorer:
     def under_way(self, odometer: float) -> bool:
         """An exploring move is running and has not reached its end: it runs to its end."""
         return self.move is not None and odometer < self.until and not self.follower.reached
+
+    def roomy(self, obs: Observation) -> bool:
+        """Nothing the scan shows within ``ROOMY_M`` beyond the robot's radius: room to turn and
+        set off in any direction (not in a doorway)."""
+        points = obstacle_points(obs.points, self.grid_config)
+        if not len(points):
+            return True
+        return float(np.hypot(points[:, 0], points[:, 1]).min()) >= self.robot_radius + ROOMY_M
 
     def no_progress(self, stamp: float, odometer: float) -> bool:
         """While not localized: less than 0.3 m of motion in the last 5 s."""
