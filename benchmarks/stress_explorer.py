@@ -77,8 +77,9 @@ def hypotheses_seen(nav, anchors, truth: np.ndarray) -> str:
     for h in nav.startup.hypotheses:
         anchor = anchors.poses.get(round(float(nav.graph.vertices[h.vertex].stamp), 6))
         off = np.hypot(*(se2.compose(anchor, h.pose)[:2] - truth[:2])) if anchor is not None else np.nan
-        seen.append(f"v{h.vertex}:s{h.support}:p{len(h.places)}:{off:.1f}m")
-    return f"looks={nav.startup.looks} [{' '.join(seen)}]"
+        seen.append(f"v{h.vertex}:s{h.support}:p{len(h.places)}:c{h.contradicted}:{off:.1f}m")
+    startup = nav.startup
+    return f"looks={startup.looks} far(dropped={startup.far_dropped},refused={startup.far_refused}) [{' '.join(seen)}]"
 
 
 def drive(args, sim, system, anchors) -> tuple[int, float]:

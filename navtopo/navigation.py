@@ -273,15 +273,18 @@ class Navigator:
         odometer = startup.odometer
         if explorer.under_way(odometer):
             return explorer.step(obs, self.counters)  # an exploring move runs to its end
-        if best is not None and not explorer.no_progress(obs.stamp, odometer):
+        # look-alikes make the robot explore, but not from a doorway: an exploring move planned
+        # from inside one turned on the spot and cut the jamb (on a held-out wing)
+        ambiguous = startup.ambiguous() and explorer.roomy(obs)
+        if best is not None and not ambiguous and not explorer.no_progress(obs.stamp, odometer):
             # drive as the best hypothesis sees it: confirmation on the way
             if best is not self._tentative or explorer.move is not None:
                 self._tentative, self._path_vertex, self._route = best, None, None
                 explorer.stop()
             return self._drive(obs, best.vertex, best.pose, tentative=True)
-        # no hypothesis, or driving by the best one gets nowhere (it may be the wrong one, or two
-        # places look alike from here): move toward open space for a new view (no move is under
-        # way here: a new one begins)
+        # no hypothesis, look-alikes as well supported as the best, or driving by the best one gets
+        # nowhere (it may be the wrong one, or two places look alike from here): move toward open
+        # space for a new view (no move is under way here: a new one begins)
         self._tentative = None
         explorer.begin(obs.stamp, odometer)
         return explorer.step(obs, self.counters)

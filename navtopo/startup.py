@@ -26,6 +26,15 @@ locations, in a corridor that fixes the pose along it poorly, the matcher refuse
 meanwhile every location is checked once a metre, and a place verified elsewhere becomes a rival
 that the next looks weigh.
 
+The far evidence. The matcher lets a few per cent of a grid's walls disagree, and along a corridor of
+identical rooms the places a room apart differ by fewer: by the beams that reach the corridor's end.
+So among rivals each look also counts the scan's beams each hypothesis's map contradicts
+(``beam_contradictions``), and counts the look against a hypothesis with ``far_margin`` more than the
+least contradicted one; a verified candidate so contradicted is not made a hypothesis (it would come
+back at every look and keep a rival alive). Nor is one, found while others have been followed, that
+explains the last ``far_history`` looks (kept one a metre) worse than they do: a look-alike ruled out
+at a corridor's end is found again in the next identical room, where no beam reaches the end.
+
 The commitment rule, as a test. Commit to ``h`` only when all of these hold:
   1. ``h`` is the only hypothesis left, and the look that commits verified it;
   2. it has been verified at ``confirm_looks`` looks and survived ``confirm_distance`` metres, and
@@ -41,7 +50,8 @@ fails with ``not_localized``: a wrong localization is worse than none.
 
 Moving meanwhile. The navigator (``navtopo.navigation``) drives toward the goal as the best
 hypothesis sees it (so confirmation costs no detour when the best is right), or, with no hypothesis
-(or none that gets anywhere), the ``Explorer`` moves in the robot's own scan toward the free point
+(or none that gets anywhere, or look-alikes as well supported as the best: ``ambiguous``), the
+``Explorer`` moves in the robot's own scan toward the free point
 farthest from where it has driven (out of a room through its door rather than round it again).
 Both are blind moves — a path in one scan's grid, or in a map that may be another place's — so
 both are checked against every new scan (``Explorer.scan_on_path``).
@@ -53,22 +63,24 @@ odometry frame.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.ndimage import maximum_filter1d
 
 from navkit.follower import PathFollower
 from navkit.geometry import between, compose, distance_to_polyline, transform_points
 from navkit.grid_planning import plan_path
 from navkit.grid_search import inflate_free
-from navkit.raster import FREE, OCCUPIED, GridFrame, inside
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navkit.scan import obstacle_points
 from navkit.types import Command, Observation
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.mapping import GraphMaintainer, moved_enough
-from navtopo.planning import LocalPlanner
+from navtopo.planning import LocalPlanner, UnionGrid, build_union_grid
 from navtopo.scan_matching import PreparedGrid, prepare
 
 
@@ -107,8 +119,29 @@ class StartupConfig(BaseModel):
     same_place_in_map: float = Field(
         1.5, gt=0, description="m: ... or this close by the locations' map poses, where the graph does not join them"
     )
+    far_evidence: bool = Field(
+        True,
+        description="weigh the hypotheses by the scan's beams against each one's map beyond the matcher's verdict (see "
+        "``beam_contradictions``)",
+    )
+    far_tolerance: float = Field(
+        0.5, gt=0, description="m a beam must run past a mapped wall (or end clear of one) to contradict"
+    )
+    far_margin: int = Field(
+        6, ge=1, description="contradicted beams beyond the fewest among the hypotheses that count a look against one ..."
+    )
+    far_margin_share: float = Field(0.015, ge=0, le=1, description="... or this share of the beams, if more")
+    union_radius: float = Field(20.0, gt=0, description="m: half the side of a hypothesis's map (its location and neighbours)")
+    far_history: int = Field(
+        8,
+        ge=0,
+        description="earlier looks (one a metre, beams 2° apart) a place found while others live must explain: refused "
+        "with twice far_margin more contradicted beams in all than the least",
+    )
+    ambiguous_looks: int = Field(8, ge=1, description="looks after which equally supported rivals make the robot explore ...")
+    ambiguous_support: int = Field(2, ge=0, description="... 'equally': the two best supports this close")
     explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
-    timeout: float = Field(60.0, gt=0, description="s of simulated time without a commitment: not_localized")
+    timeout: float = Field(90.0, gt=0, description="s of simulated time without a commitment: not_localized")
 
 
 @dataclass
@@ -123,6 +156,7 @@ class Hypothesis:
     places: set[int] = field(default_factory=set)  # the locations it was verified in
     alone_since: float | None = None  # the start-up odometer when its last rival fell (None: rivals live)
     alone_support: int = 0  # looks that verified it since then
+    contradicted: int = 0  # the scan's beams its map contradicted at the last look weighed by the far evidence
 
     @property
     def vertex(self) -> int:
@@ -158,6 +192,69 @@ class Localization:
         }
 
 
+ROOMY_M = 0.3  # m beyond the robot's radius free all round: an exploring move among look-alikes may begin
+FAR_LOOK_M = 10.0  # m: how far along each direction an exploring move weighs the new ground the scan shows
+WALL_WIDTH_M = 0.3  # a wall the far evidence counts a beam through is at least this wide across the beam
+
+
+def scan_beams(points: NDArray, band: GridConfig, step_deg: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The scan as beams: the nearest obstacle return in each ``step_deg`` of azimuth, (angles,
+    ranges) in the robot frame, for the bins that have one (a bin without a return says nothing)."""
+    xy = np.asarray(obstacle_points(points, band)[:, :2], dtype=np.float64)
+    ranges = np.hypot(xy[:, 0], xy[:, 1])
+    xy, ranges = xy[ranges > 0.05], ranges[ranges > 0.05]
+    if not len(ranges):
+        return np.zeros(0), np.zeros(0)
+    angles = np.arctan2(xy[:, 1], xy[:, 0])
+    bins = np.rint((angles + np.pi) / np.radians(step_deg)).astype(np.int64)  # a lidar step apart: one a bin
+    order = np.lexsort((ranges, bins))
+    first = order[np.r_[True, bins[order][1:] != bins[order][:-1]]]
+    return angles[first], ranges[first]
+
+
+def beam_contradictions(union: UnionGrid, pose: NDArray, angles: NDArray, ranges: NDArray, tolerance: float) -> int:
+    """How many of the scan's beams (``scan_beams``) contradict the map ``union`` (a location's
+    grid and its neighbours', ``planning.build_union_grid`` unturned) with the robot at ``pose`` in
+    the location's frame:
+
+    * *through a wall*: the beam crosses a mapped wall and runs on at least ``tolerance`` beyond it
+      (the scan sees open floor where the map has a wall). Only a crossing counts: a wall cell
+      followed ``tolerance`` further on by one that is not a wall, with wall cells
+      ``WALL_WIDTH_M / 2`` to either side of the beam there (a beam along a wall at a grazing angle,
+      or past the end of a door's jamb a few centimetres off, has free space to one side);
+    * *a phantom return*: the return lies in mapped free space at least ``tolerance`` from every
+      mapped wall (the scan sees a wall where the map has open floor).
+
+    Unknown cells contradict nothing. Scan matching verifies a place by the agreement of walls
+    within its grid, a few per cent of them allowed to disagree; two look-alike places along a
+    corridor of identical rooms differ by the few beams that reach the corridor's end, which this
+    counts."""
+    if not len(ranges):
+        return 0
+    res = union.frame.resolution
+    steps = np.arange(0.3, float(ranges.max()) + res, res)
+    offset = max(1, int(round(tolerance / res)))
+    direction = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    across = np.stack([-direction[:, 1], direction[:, 0]], axis=1) * WALL_WIDTH_M / 2
+    points = direction[:, None, :] * steps[None, :, None]  # (B, S, 2)
+
+    def wall_at(shift: NDArray) -> NDArray[np.bool_]:
+        xy = transform_points(pose, (points + shift[:, None, :]).reshape(-1, 2))
+        return union.values_at(xy, union.cells, UNKNOWN).reshape(points.shape[:2]) == OCCUPIED
+
+    wall = wall_at(np.zeros_like(across))
+    # a wall, not the end of a door's jamb or a wall the beam runs along: walls on both sides of the
+    # beam too, within two samples along it (a wall crossed at a slant)
+    sides = [maximum_filter1d(wall_at(side), size=5, axis=1) for side in (across, -across)]
+    crossing = wall & sides[0] & sides[1]
+    before = steps[None, :-offset] <= (ranges[:, None] - tolerance)  # a sample with `tolerance` of the beam beyond it
+    through = (crossing[:, :-offset] & ~wall[:, offset:] & before).any(axis=1)
+    ends = transform_points(pose, direction * ranges[:, None])
+    open_floor = union.values_at(ends, union.cells, UNKNOWN) == FREE
+    phantom = open_floor & (union.values_at(ends, union.wall_distance, np.float32(0.0)) >= tolerance)
+    return int(np.count_nonzero(through | phantom))
+
+
 class Startup:
     """Hypotheses of where the robot starts, looked for and confirmed over motion."""
 
@@ -180,6 +277,15 @@ class Startup:
         self._perceived: tuple[float, PreparedGrid, NDArray[np.float32]] | None = None  # (stamp, query, descriptor)
         self.seen = 0
         self.checks = 0
+        self._unions: dict[int, UnionGrid] = {}  # the hypotheses' maps, for the far evidence
+        self._beams: tuple[float, NDArray[np.float64], NDArray[np.float64]] | None = None  # (stamp, angles, ranges)
+        # earlier looks' beams (odometry, angles, ranges), one a metre: what a place found late must explain too
+        self._history: deque[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]] = deque(
+            maxlen=self.config.far_history
+        )
+        self._history_at = -np.inf  # the odometer at the last look kept
+        self.far_dropped = 0  # looks that counted against a hypothesis by the far evidence alone
+        self.far_refused = 0  # verified candidates not made hypotheses by it
 
     def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
         m = self.maintainer
@@ -211,6 +317,9 @@ class Startup:
         self._last_look_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         self.looks += 1
         self._look(obs, driven, route)
+        if self.config.far_evidence and self._odometer >= self._history_at + 1.0:
+            self._history_at = self._odometer
+            self._history.append((self._last_odom.copy(), *scan_beams(obs.points, self.maintainer.grid_config, 2.0)))
         committed = self._committed()
         if committed is not None and self.config.check_all and self._odometer > self._checked_at:
             # place recognition may rank the right location low (a look-alike ranked above it, 29 m
@@ -229,24 +338,27 @@ class Startup:
             h.tracker.update(obs.points, obs.odom, obs.stamp, route=route if h is driven else None, force=True, localize=False)
             if not h.tracker.last_verified:
                 self._relocate(h, self._perceive(obs)[0], obs.odom)
-        self._weigh()
+        self._weigh(self._far_against(obs))
         alone = len(self.hypotheses) == 1
         check_all = self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0
         self._recognise(obs, check_all)
 
-    def _weigh(self) -> None:
-        """This look's evidence: support for the hypotheses it verified; against the others only if
-        it verified one; the dropped ones gone; the survivor's time alone."""
+    def _weigh(self, far: list[bool] | None = None) -> None:
+        """This look's evidence: support for the hypotheses it verified and the far evidence does
+        not count against (``far``); against the others only if it verified one, or by the far
+        evidence; the dropped ones gone; the survivor's time alone."""
         verified = [h.tracker.last_verified for h in self.hypotheses]
         telling = any(verified)
-        for h, ok in zip(self.hypotheses, verified, strict=True):
-            if ok:
+        far = far if far is not None else [False] * len(verified)
+        for h, ok, against in zip(self.hypotheses, verified, far, strict=True):
+            if ok and not against:
                 h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
                 h.places.add(h.vertex)
                 h.alone_support += int(h.alone_since is not None)
             else:
-                h.misses += int(telling)
-                h.unverified += 1
+                h.misses += int(telling or against)
+                h.unverified += int(not ok)
+                self.far_dropped += int(against)
         config = self.config
         self.hypotheses = [h for h in self.hypotheses if h.misses < config.drop_after and h.unverified < config.drop_unverified]
         if len(self.hypotheses) == 1 and self.hypotheses[0].alone_since is None:
@@ -262,8 +374,26 @@ class Startup:
             self.checks += 1
         top_k = len(m.graph) if check_all else self.config.top_k
         found = m.localizer.localize(query, descriptor, top_k=top_k)
+        new = [loc for loc in found if not any(self._same_place(h, loc.vertex, loc.pose) for h in self.hypotheses)]
+        if self.config.far_evidence and new and len(self.hypotheses) + len(new) > 1:
+            # a place the far evidence counts against at this look is not made a hypothesis (it
+            # would come back at every look and keep a rival alive)
+            places = [(h.vertex, h.pose) for h in self.hypotheses] + [(loc.vertex, loc.pose) for loc in new]
+            keep = ~self._far_outliers(obs, self._far_counts(obs, places))[len(self.hypotheses) :]
+            if self.hypotheses and self._history and keep.any():
+                # a place found now while others have been followed for a while must explain the
+                # robot's earlier looks as well as they do: a look-alike the far evidence ruled out
+                # a few metres back is found again as soon as the beams no longer reach what told
+                # them apart (inside the next identical room), and would keep a rival alive for good
+                live = len(self.hypotheses)
+                later = [i for i in range(len(new)) if keep[i]]
+                replayed = self._replayed(obs, places[:live] + [places[live + i] for i in later])
+                refused = replayed[live:] >= replayed.min() + 2 * self.config.far_margin
+                keep[[i for i, r in zip(later, refused, strict=True) if r]] = False
+            self.far_refused += int(np.count_nonzero(~keep))
+            new = [loc for loc, kept in zip(new, keep, strict=True) if kept]
         added = 0
-        for located in found:
+        for located in new:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 tracker.last_verified = True  # this look verified it
@@ -274,6 +404,56 @@ class Startup:
         for h in self.hypotheses if added else []:  # a new rival: nobody is alone; a first find: alone from now
             h.alone_since, h.alone_support = alone, 1 if alone is not None else 0
         return added
+
+    def _far_against(self, obs: Observation) -> list[bool]:
+        """For each live hypothesis: does the far evidence count this look against it? Among rivals
+        only: a hypothesis whose map the scan's beams contradict (``beam_contradictions``) at
+        ``far_margin`` beams (or ``far_margin_share`` of them) more than the least contradicted one's.
+        The right place and its exact look-alikes agree within the matcher's grid; the beams that
+        reach farther (a corridor's end, a junction) tell them apart."""
+        if not self.config.far_evidence or len(self.hypotheses) < 2:
+            self._unions.clear()
+            return [False] * len(self.hypotheses)
+        counts = self._far_counts(obs, [(h.vertex, h.pose) for h in self.hypotheses])
+        for h, count in zip(self.hypotheses, counts, strict=True):
+            h.contradicted = int(count)
+        in_use = {h.vertex for h in self.hypotheses}
+        self._unions = {v: u for v, u in self._unions.items() if v in in_use}
+        return [bool(x) for x in self._far_outliers(obs, counts)]
+
+    def _far_counts(self, obs: Observation, places: list[tuple[int, NDArray]]) -> NDArray[np.int64]:
+        if self._beams is None or self._beams[0] != obs.stamp:
+            self._beams = (obs.stamp, *scan_beams(obs.points, self.maintainer.grid_config))
+        _, angles, ranges = self._beams
+        return np.array(
+            [beam_contradictions(self._union(v), pose, angles, ranges, self.config.far_tolerance) for v, pose in places]
+        )
+
+    def _replayed(self, obs: Observation, places: list[tuple[int, NDArray]]) -> NDArray[np.int64]:
+        """For each place (vertex, the robot's pose in it now): the beams of the kept earlier looks
+        (``far_history``, one a metre) its map contradicts, the robot carried back to each by odometry."""
+        now = np.asarray(obs.odom, dtype=np.float64)
+        totals = np.zeros(len(places), np.int64)
+        for odom, angles, ranges in self._history:
+            back = between(now, odom)  # the earlier pose in the current robot frame
+            for k, (vertex, pose) in enumerate(places):
+                totals[k] += beam_contradictions(
+                    self._union(vertex), compose(pose, back), angles, ranges, self.config.far_tolerance
+                )
+        return totals
+
+    def _far_outliers(self, obs: Observation, counts: NDArray[np.int64]) -> NDArray[np.bool_]:
+        assert self._beams is not None and self._beams[0] == obs.stamp
+        margin = max(self.config.far_margin, self.config.far_margin_share * len(self._beams[2]))
+        return counts >= counts.min() + margin
+
+    def _union(self, vertex: int) -> UnionGrid:
+        union = self._unions.get(vertex)
+        if union is None:
+            m = self.maintainer
+            union = build_union_grid(m.graph, vertex, m.grid_config, self.config.union_radius, align=False)
+            self._unions[vertex] = union
+        return union
 
     def _perceive(self, obs: Observation) -> tuple[PreparedGrid, NDArray[np.float32]]:
         """The look's scan prepared for matching, and its descriptor (once a look, though asked twice)."""
@@ -348,6 +528,17 @@ class Startup:
         """Metres of odometry since the start-up began."""
         return self._odometer
 
+    def ambiguous(self) -> bool:
+        """Two or more hypotheses equally supported (within ``ambiguous_support`` looks) after
+        ``ambiguous_looks`` looks: exact look-alikes, which driving by one of them toward the goal
+        need never tell apart (along a corridor of identical rooms it may stop between them); the
+        robot explores instead, away from where it has driven, toward a corridor's end or a
+        junction, which the far evidence tells apart."""
+        if len(self.hypotheses) < 2:
+            return False
+        first, second = sorted((h.support for h in self.hypotheses), reverse=True)[:2]
+        return first >= self.config.ambiguous_looks and first - second <= self.config.ambiguous_support
+
     def best(self) -> Hypothesis | None:
         """The hypothesis to drive by while none is committed: most supported."""
         return max(self.hypotheses, key=lambda h: h.support, default=None)
@@ -392,6 +583,14 @@ class Explorer:
     def under_way(self, odometer: float) -> bool:
         """An exploring move is running and has not reached its end: it runs to its end."""
         return self.move is not None and odometer < self.until and not self.follower.reached
+
+    def roomy(self, obs: Observation) -> bool:
+        """Nothing the scan shows within ``ROOMY_M`` beyond the robot's radius: room to turn and
+        set off in any direction (not in a doorway)."""
+        points = obstacle_points(obs.points, self.grid_config)
+        if not len(points):
+            return True
+        return float(np.hypot(points[:, 0], points[:, 1]).min()) >= self.robot_radius + ROOMY_M
 
     def no_progress(self, stamp: float, odometer: float) -> bool:
         """While not localized: less than 0.3 m of motion in the last 5 s."""
@@ -443,8 +642,13 @@ class Explorer:
 
     def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
         """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or
-        twice, or half that) away, the one farthest from where the start-up has already driven (the
-        way out of a room leads through its door, not round the room again), forward first on ties."""
+        twice, or half that) away, the one in the direction whose free ground, as far as the scan
+        shows it within ``FAR_LOOK_M``, lies farthest from where the start-up has already driven;
+        on ties, the point itself farthest from it, then forward. The way out of a room leads
+        through its door, not round the room again (judged by the points within reach alone, a room
+        toured left nothing new, and the explorer went round it for 40 s), and along a corridor
+        onward rather than into the next room (on a wing of identical rooms only the corridor's
+        ends tell the places apart)."""
         grid_config = self.grid_config
         grid = grid_from_points(obs.points, grid_config)
         # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
@@ -471,14 +675,29 @@ class Explorer:
             return None
         trail = np.array(self.trail) if self.trail else np.zeros((0, 2))
         odom = np.asarray(obs.odom, dtype=np.float64)
-        in_odom = transform_points(odom, ends[ok])
-        novelty = (
-            np.min(np.hypot(*(in_odom[:, None, :] - trail[None, :, :]).transpose(2, 0, 1)), axis=1)
-            if len(trail)
-            else np.zeros(len(ok))
-        )
+
+        def novelty(points: NDArray) -> NDArray[np.float64]:  # (N, 2) robot frame -> m from the trail
+            if not len(trail):
+                return np.zeros(len(points))
+            in_odom = transform_points(odom, points)
+            return np.min(np.hypot(*(in_odom[:, None, :] - trail[None, :, :]).transpose(2, 0, 1)), axis=1)
+
+        # what lies beyond: the newest ground the scan shows free along each direction (a room
+        # toured leaves no new ground within reach, but the corridor seen through its door does)
+        steps = np.arange(0.5, FAR_LOOK_M + 0.25, 0.5)
+        along = directions[:, None, :] * steps[None, :, None]  # (directions, steps, 2)
+        samples = frame.to_cell(along.reshape(-1, 2))
+        on = inside(samples, grid.shape)
+        free = np.zeros(len(samples), bool)
+        free[on] = grid[samples[on, 0], samples[on, 1]] == FREE
+        free = np.logical_and.accumulate(free.reshape(along.shape[:2]), axis=1)  # up to the first cell not seen free
+        beyond = np.where(free, novelty(along.reshape(-1, 2)).reshape(free.shape), 0.0).max(axis=1)
+        near = novelty(ends[ok])
+        far = np.tile(beyond, 3)[ok]
         forward = np.cos(np.tile(angles, 3))[ok]
-        order = np.lexsort((-forward, -np.round(novelty / 0.5)))  # novelty in 0.5 m steps, then forward
+        # the newest ground along the direction in 1 m steps, then the end's novelty in 0.5 m
+        # steps, then forward
+        order = np.lexsort((-forward, -np.round(near / 0.5), -np.round(far)))
         for k in ok[order][:8]:
             planned = plan_path(masks, frame, np.zeros(2), ends[k], snap_cells=5)
             if planned is not None:

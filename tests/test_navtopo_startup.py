@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 
 from navkit import geometry as se2
-from navkit.raster import FREE
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
 from navkit.types import Observation
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
+from navtopo.planning import UnionGrid
 from navtopo.scan_matching import MatchingConfig
-from navtopo.startup import Hypothesis, Startup, StartupConfig
+from navtopo.startup import Hypothesis, Startup, StartupConfig, beam_contradictions, scan_beams
 from runners.sim import Simulator
 from scenarios.scenario import build_scenario
 from scenarios.schema import parse_spec
@@ -70,6 +71,79 @@ def test_an_exact_look_alike_is_never_left_alone_by_chance_and_a_contradicted_pl
         if k >= startup.config.drop_after - 1:
             assert contradicted not in startup.hypotheses
     assert startup.hypotheses == [right, alike]
+
+
+# -- the far evidence: beams against a hypothesis's map --------------------------------------------
+
+
+def _corridor_map(east_end: float = 10.0) -> UnionGrid:
+    """A corridor 2.4 m wide along x from -15 m to ``east_end``, walls of one cell, unknown beyond."""
+    res = 0.1
+    frame = GridFrame(np.array([-16.0, -3.0]), res)
+    cells = np.full((60, 300), UNKNOWN, np.uint8)
+    centres = frame.to_world(np.argwhere(cells == UNKNOWN)).reshape(60, 300, 2)
+    x, y = centres[..., 0], centres[..., 1]
+    inside = (np.abs(y) < 1.2) & (x > -15.0) & (x < east_end)
+    cells[inside] = FREE
+    wall = ~inside & (np.abs(y) < 1.3) & (x > -15.1) & (x < east_end + 0.1)
+    cells[wall] = OCCUPIED
+    return UnionGrid(0, cells, frame)
+
+
+def _corridor_scan(x_robot: float, east_end: float = 10.0) -> np.ndarray:
+    """A lidar's returns (robot frame, z 0.6 m, 1° apart) from x_robot on the corridor's axis, facing east."""
+    angles = np.radians(np.arange(-180.0, 180.0, 1.0))
+    c, s = np.cos(angles), np.sin(angles)
+    with np.errstate(divide="ignore"):
+        to_side = np.where(np.abs(s) > 1e-9, 1.2 / np.abs(s), np.inf)
+        to_end = np.where(c > 1e-9, (east_end - x_robot) / c, np.where(c < -1e-9, (-15.0 - x_robot) / c, np.inf))
+    ranges = np.minimum(to_side, to_end)
+    keep = ranges <= 15.0
+    return np.stack([ranges * c, ranges * s, np.full_like(ranges, 0.6)], axis=1)[keep]
+
+
+def test_beams_contradict_a_look_alike_along_a_corridor_and_not_the_right_place():
+    """The robot 6 m short of a corridor's end: its right place in the map contradicts no beam; a
+    place 4 m further along or back (a room's width on a wing of identical rooms: the same walls
+    within a few metres) is contradicted by the beams that reach the end, through the map's end
+    wall (4 m east) or as returns where the map has open floor (4 m west)."""
+    union = _corridor_map()
+    angles, ranges = scan_beams(_corridor_scan(4.0), GRID)
+    assert 340 <= len(ranges) <= 360  # one beam per degree (none where the corridor runs beyond the range)
+    right = beam_contradictions(union, np.array([4.0, 0.0, 0.0]), angles, ranges, 0.5)
+    east = beam_contradictions(union, np.array([8.0, 0.0, 0.0]), angles, ranges, 0.5)
+    west = beam_contradictions(union, np.array([0.0, 0.0, 0.0]), angles, ranges, 0.5)
+    assert right == 0
+    assert east >= 12 and west >= 12
+    # and 2 m either way (half a room) too
+    assert beam_contradictions(union, np.array([6.0, 0.0, 0.0]), angles, ranges, 0.5) >= 12
+    assert beam_contradictions(union, np.array([2.0, 0.0, 0.0]), angles, ranges, 0.5) >= 12
+
+
+def test_a_place_found_late_must_explain_the_earlier_looks_carried_back_by_odometry():
+    """The robot saw the corridor's end from 4-6 m before it (three looks kept), then drove back to
+    x = -6 m: there a look-alike 4 m along matches the last scan about as well as the right place, but
+    the earlier looks, carried back by odometry, contradict it and not the right place."""
+    startup = Startup(SimpleNamespace(grid_config=GRID), None, StartupConfig())  # type: ignore[arg-type]
+    startup._unions = {0: _corridor_map()}
+    for x in (4.0, 5.0, 6.0):
+        startup._history.append((np.array([x, 0.0, 0.0]), *scan_beams(_corridor_scan(x), GRID, 2.0)))
+    now = SimpleNamespace(odom=np.array([-6.0, 0.0, 0.0]))
+    right, shifted, back = startup._replayed(
+        now, [(0, np.array([-6.0, 0.0, 0.0])), (0, np.array([-2.0, 0.0, 0.0])), (0, np.array([-10.0, 0.0, 0.0]))]
+    )  # type: ignore[arg-type]
+    assert right == 0
+    assert shifted >= 2 * startup.config.far_margin and back >= 2 * startup.config.far_margin
+
+
+def test_the_far_evidence_counts_against_the_contradicted_hypothesis_only():
+    startup, (right, shifted) = _bookkeeping(2)
+    for _ in range(2):
+        _look(startup, [right, shifted], [True, True])
+    for _ in range(3):  # both verified by the matcher, one contradicted by the far beams
+        startup._odometer += 0.25
+        startup._weigh([False, True])
+    assert startup.hypotheses == [right]
 
 
 def test_the_survivor_is_committed_only_after_it_has_been_verified_alone_for_a_while():
