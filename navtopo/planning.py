@@ -205,11 +205,12 @@ class UnionGrid:
         if key not in self._masks:
             radius_cells = radius / self.frame.resolution
             if medial is None and radius_cells * radius_cells > CLEARANCE_CAP - 1:
-                clearance = grid_search.clearance_squared(self._free(kind))
-                self._masks[key] = grid_search.passable(clearance, radius, self.frame.resolution)
+                # beyond the 8-bit cap: a transform of its own
+                self._masks[key] = grid_search.passable(
+                    grid_search.clearance_squared(self._free(kind)), radius, self.frame.resolution
+                )
             else:
-                clearance = self._squared(kind)
-                self._masks[key] = grid_search.passable(clearance, radius, self.frame.resolution, medial)
+                self._masks[key] = grid_search.passable(self._squared(kind), radius, self.frame.resolution, medial)
         return self._masks[key]
 
     def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.int32]:
