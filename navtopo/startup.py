@@ -38,8 +38,10 @@ at a corridor's end is found again in the next identical room, where no beam rea
 The commitment rule, as a test. Commit to ``h`` only when all of these hold:
   1. ``h`` is the only hypothesis left, and the look that commits verified it;
   2. it has been verified at ``confirm_looks`` looks and survived ``confirm_distance`` metres, and
-     in ``confirm_places`` locations (or over ``confirm_distance_one_place`` metres): a room and its
-     mirror image agree from inside, the corridor outside the door tells them apart;
+     in ``confirm_places`` locations (or, if set, over ``confirm_distance_one_place`` metres): a room
+     and its look-alike agree from inside however far the robot drives about it (a start in a room
+     the map never entered, 8.9 m of dithering in it, committed 5.3 m off to the one room elsewhere
+     that matched), the corridor outside the door tells them apart;
   3. since its last rival fell it has been verified at ``confirm_alone_looks`` looks over
      ``confirm_alone_distance`` metres (a rival dropped at one look may have been the right place:
      place recognition and every location's check get the chance to find it again);
@@ -100,8 +102,11 @@ class StartupConfig(BaseModel):
     confirm_places: int = Field(
         2, ge=1, description="locations the hypothesis must have been verified in before it is committed ..."
     )
-    confirm_distance_one_place: float = Field(
-        4.0, ge=0, description="... unless it has survived this many m of motion (a start and goal in one location)"
+    confirm_distance_one_place: float | None = Field(
+        None,
+        ge=0,
+        description="... unless it has survived this many m of motion (default: never; driving about a room does not "
+        "tell it from a look-alike room elsewhere)",
     )
     drop_after: int = Field(
         3, ge=1, description="looks against a hypothesis (another one verified, it not), less those for it, that drop it"
@@ -515,7 +520,8 @@ class Startup:
         if h.alone_support < config.confirm_alone_looks or self._odometer - h.alone_since < config.confirm_alone_distance:
             return None
         # a room and its mirror image agree from inside; the corridor outside the door tells them apart
-        if len(h.places) >= config.confirm_places or moved >= config.confirm_distance_one_place:
+        one_place = config.confirm_distance_one_place
+        if len(h.places) >= config.confirm_places or (one_place is not None and moved >= one_place):
             return h
         return None
 

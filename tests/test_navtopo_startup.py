@@ -136,6 +136,19 @@ def test_a_place_found_late_must_explain_the_earlier_looks_carried_back_by_odome
     assert shifted >= 2 * startup.config.far_margin and back >= 2 * startup.config.far_margin
 
 
+def test_a_place_verified_in_one_location_only_is_never_committed_however_far_the_robot_drives():
+    """Driving about a room does not tell it from a look-alike room elsewhere (the right one may be a
+    room the map never entered): a commitment needs a second location, the corridor beyond the door."""
+    startup, (room,) = _bookkeeping(1)
+    room.alone_since = 0.0
+    for _ in range(40):  # 10 m of looks, every one verifying it, all in location 0
+        _look(startup, [room], [True])
+        assert startup._committed() is None
+    room.places.add(1)  # verified beyond the door
+    _look(startup, [room], [True])
+    assert startup._committed() is room
+
+
 def test_the_far_evidence_counts_against_the_contradicted_hypothesis_only():
     startup, (right, shifted) = _bookkeeping(2)
     for _ in range(2):
