@@ -539,7 +539,16 @@ class Startup:
         ``ambiguous_looks`` looks: exact look-alikes, which driving by one of them toward the goal
         need never tell apart (along a corridor of identical rooms it may stop between them); the
         robot explores instead, away from where it has driven, toward a corridor's end or a
-        junction, which the far evidence tells apart."""
+        junction, which the far evidence tells apart. Or one hypothesis alone, verified at twice
+        ``ambiguous_looks`` looks in fewer than ``confirm_places`` locations: it cannot be committed
+        until the robot leaves the location, and driving by it did not (a start in a room the map
+        never entered, driving by its look-alike elsewhere, went round that room for 90 s)."""
+        if len(self.hypotheses) == 1:
+            # one place, verified for twice as long in one location alone: driving by it has not left
+            # the room (it may be a look-alike of a room the map never entered), and only a second
+            # location can confirm it
+            h = self.hypotheses[0]
+            return len(h.places) < self.config.confirm_places and h.support >= 2 * self.config.ambiguous_looks
         if len(self.hypotheses) < 2:
             return False
         first, second = sorted((h.support for h in self.hypotheses), reverse=True)[:2]
