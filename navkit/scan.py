@@ -7,6 +7,8 @@
   + 1.2 m) is above any robot body and below ceilings (2.4 m and up in buildings), so door frames,
   shelves and tables are obstacles while a ceiling is not. NavTopo's location grids and the metric
   baseline's grid use the same band.
+* ``azimuth_bins``: the azimuth bin of each return (the metric baseline's free ranges per bin,
+  NavTopo's start-up beams).
 * ``trace_ray`` / ``trace_scan``: free space along every return's ray into a uint8 grid of
   ``UNKNOWN`` / ``FREE`` / ``OCCUPIED`` cells (``navkit.raster``), compiled; coordinates are
   continuous cell coordinates (cell c covers [c, c + 1)).
@@ -40,6 +42,14 @@ class HeightBand(Protocol):
 class ObstacleBand:
     floor_height: float = FLOOR_HEIGHT
     ceiling_height: float = CEILING_HEIGHT
+
+
+def azimuth_bins(xy: ArrayLike, bins: int) -> NDArray[np.int64]:
+    """(N, >=2) points in the robot frame -> (N,) index of the azimuth bin each lies in: ``bins``
+    bins of 2π / bins, bin b centred on azimuth b * 2π / bins (whole degrees at 360 bins, as the
+    simulated lidar's columns are, so one column falls in one bin)."""
+    p = np.asarray(xy, dtype=np.float64)
+    return np.round(np.arctan2(p[:, 1], p[:, 0]) / (2.0 * np.pi / bins)).astype(np.int64) % bins
 
 
 def obstacle_points(points: ArrayLike, band: HeightBand | None = None) -> NDArray:

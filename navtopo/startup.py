@@ -78,7 +78,7 @@ from navkit.geometry import between, compose, distance_to_polyline, transform_po
 from navkit.grid_planning import plan_path
 from navkit.grid_search import inflate_free
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
-from navkit.scan import obstacle_points
+from navkit.scan import azimuth_bins, obstacle_points
 from navkit.types import Command, Observation
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.mapping import GraphMaintainer, moved_enough
@@ -211,7 +211,7 @@ def scan_beams(points: NDArray, band: GridConfig, step_deg: float = 1.0) -> tupl
     if not len(ranges):
         return np.zeros(0), np.zeros(0)
     angles = np.arctan2(xy[:, 1], xy[:, 0])
-    bins = np.rint((angles + np.pi) / np.radians(step_deg)).astype(np.int64)  # a lidar step apart: one a bin
+    bins = azimuth_bins(xy, int(round(360.0 / step_deg)))
     order = np.lexsort((ranges, bins))
     first = order[np.r_[True, bins[order][1:] != bins[order][:-1]]]
     return angles[first], ranges[first]

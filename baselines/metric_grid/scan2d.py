@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from navkit.scan import HeightBand, obstacle_points
+from navkit.scan import HeightBand, azimuth_bins, obstacle_points
 
 AZIMUTH_BINS = 360
 
@@ -43,8 +43,7 @@ def free_ranges(points: ArrayLike, bins: int = AZIMUTH_BINS) -> NDArray[np.float
     if len(p) == 0:
         return ranges.astype(np.float16)
     r = np.hypot(p[:, 0], p[:, 1])
-    index = np.round(np.arctan2(p[:, 1], p[:, 0]) / (2.0 * np.pi / bins)).astype(np.int64) % bins
-    np.maximum.at(ranges, index, r)
+    np.maximum.at(ranges, azimuth_bins(p, bins), r)
     return ranges.astype(np.float16)
 
 
