@@ -416,14 +416,15 @@ class Startup:
         ``far_margin`` beams (or ``far_margin_share`` of them) more than the least contradicted one's.
         The right place and its exact look-alikes agree within the matcher's grid; the beams that
         reach farther (a corridor's end, a junction) tell them apart."""
+        # the maps kept: the live hypotheses' (a lone one's too: candidates found later are weighed
+        # against it at every look)
+        in_use = {h.vertex for h in self.hypotheses}
+        self._unions = {v: u for v, u in self._unions.items() if v in in_use}
         if not self.config.far_evidence or len(self.hypotheses) < 2:
-            self._unions.clear()
             return [False] * len(self.hypotheses)
         counts = self._far_counts(obs, [(h.vertex, h.pose) for h in self.hypotheses])
         for h, count in zip(self.hypotheses, counts, strict=True):
             h.contradicted = int(count)
-        in_use = {h.vertex for h in self.hypotheses}
-        self._unions = {v: u for v, u in self._unions.items() if v in in_use}
         return [bool(x) for x in self._far_outliers(obs, counts)]
 
     def _far_counts(self, obs: Observation, places: list[tuple[int, NDArray]]) -> NDArray[np.int64]:
