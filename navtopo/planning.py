@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
 from navkit.geometry import arc_lengths, compose, distance_to_polyline, inverse, transform_points
-from navkit.grid_planning import PlannedPath, plan_path
+from navkit.grid_planning import ClearanceAt, PlannedPath, plan_path, raster_clearance
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import CroppedGrid, GridConfig, mean_direction, wall_direction, warp_window, warped_bounds
@@ -62,6 +62,12 @@ class PlanningConfig(BaseModel):
         gt=0,
         description="m: where the global path comes back this much nearer the robot than it has been, the lookahead "
         "stops (a path out to a vertex and back, round a place the graph joins the long way)",
+    )
+    keep_clear: float = Field(
+        0.2,
+        ge=0,
+        description="m beyond the first level's clearance that a local path is eased off the known walls where the "
+        "free space allows (navkit.grid_planning.ease_path; as the baseline's; 0: the shortest path)",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(
@@ -226,6 +232,11 @@ class UnionGrid:
             squared = grid_search.clearance_squared(self._free(kind))
             self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
         return self._clearance[kind]
+
+    def clearance_at(self, kind: str) -> ClearanceAt:
+        """Points (N, 2, grid axes) -> metres to the nearest non-free cell of ``kind``'s centre
+        (``navkit.grid_planning.raster_clearance``; capped at ``CLEARANCE_CAP`` squared cells)."""
+        return raster_clearance(self._squared(kind), self.frame)
 
     def fits(self, xy: NDArray, kind: str, radius: float) -> bool:
         """Whether the point (2,) is ``radius`` clear of the non-free cells of ``kind`` (True off the
@@ -442,7 +453,16 @@ class LocalPlanner:
             parts = union.parts(kind, radius, medial) if blocked_xy is None or not len(blocked_xy) else _parts(passable)
             if parts[start_cell] != parts[goal_cell]:
                 continue
-            found = plan_path([passable], union.frame, ends[0], ends[1], snap, exact_goal=fits)
+            found = plan_path(
+                [passable],
+                union.frame,
+                ends[0],
+                ends[1],
+                snap,
+                exact_goal=fits,
+                clearance_at=union.clearance_at("known"),
+                prefer_m=self.wide + self.config.keep_clear,
+            )
             if found is not None:
                 planned = PlannedPath(found.points, level)
                 break

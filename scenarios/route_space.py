@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from navkit import grid_planning
 from navkit.grid_planning import plan_path
 from scenarios.world import World
 
@@ -121,18 +122,7 @@ def waypoint_route(
 
 def leg_clearances(world: World, points: NDArray) -> NDArray[np.float64]:
     """(K-1,) the least clearance along each leg of a polyline (K, 2), sampled every half cell."""
-    points = np.asarray(points, dtype=np.float64)
-    if len(points) < 2:
-        return np.zeros(0)
-    step = world.resolution / 2.0
-    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    counts = np.maximum(np.ceil(lengths / step).astype(np.int64), 1) + 1
-    leg = np.repeat(np.arange(len(lengths)), counts)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    t = (np.arange(counts.sum()) - np.repeat(starts, counts)) / np.repeat(counts - 1, counts)
-    samples = points[leg] + t[:, None] * (points[leg + 1] - points[leg])
-    values = world.clearances_at(samples)
-    return np.minimum.reduceat(values, starts)
+    return grid_planning.leg_clearances(points, world.clearances_at, world.resolution / 2.0)
 
 
 def simplify_walk(
@@ -140,41 +130,17 @@ def simplify_walk(
 ) -> NDArray[np.float64]:
     """Douglas-Peucker on a walk over cell centres, with a clearance rule: a leg replaces a stretch
     of the walk only if it keeps as far from walls as that stretch does (less ``CLEARANCE_SLACK_M``),
-    capped at ``radius + ROUTE_MARGIN_M``. ``pinned`` points are kept."""
-    points = np.asarray(points, dtype=np.float64)
-    n = len(points)
-    if n <= 2:
-        return points.copy()
-    tolerance = world.resolution if tolerance is None else tolerance
-    clear = world.clearances_at(points)
-    comfortable = radius + ROUTE_MARGIN_M
-    keep = np.zeros(n, bool) if pinned is None else np.asarray(pinned, bool).copy()
-    keep[[0, -1]] = True
-    anchors = np.nonzero(keep)[0]
-    stack = list(zip(anchors[:-1].tolist(), anchors[1:].tolist(), strict=True))
-    while stack:
-        i, j = stack.pop()
-        if j <= i + 1:
-            continue
-        a, b = points[i], points[j]
-        inner = points[i + 1 : j]
-        ab = b - a
-        norm2 = float(ab @ ab)
-        if norm2 < 1e-18:
-            distance = np.linalg.norm(inner - a, axis=1)
-        else:
-            t = np.clip((inner - a) @ ab / norm2, 0.0, 1.0)
-            distance = np.linalg.norm(inner - (a + t[:, None] * ab), axis=1)
-        k = int(np.argmax(distance))
-        if distance[k] <= tolerance:
-            need = min(float(clear[i : j + 1].min()), comfortable) - CLEARANCE_SLACK_M
-            if leg_clearances(world, np.stack([a, b]))[0] >= need:
-                continue
-        mid = i + 1 + k
-        keep[mid] = True
-        stack.append((i, mid))
-        stack.append((mid, j))
-    return points[keep]
+    capped at ``radius + ROUTE_MARGIN_M`` (``navkit.grid_planning.simplify_clear``). ``pinned``
+    points are kept."""
+    return grid_planning.simplify_clear(
+        points,
+        world.clearances_at,
+        tolerance=world.resolution if tolerance is None else tolerance,
+        cap=radius + ROUTE_MARGIN_M,
+        step=world.resolution / 2.0,
+        slack=CLEARANCE_SLACK_M,
+        pinned=pinned,
+    )
 
 
 def repair_legs(world: World, points: NDArray, space: RouteSpace) -> tuple[NDArray[np.float64], int]:

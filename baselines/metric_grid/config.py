@@ -52,6 +52,12 @@ class PlanningConfig(BaseModel):
         description="when no path keeps the robot radius plus half a cell from every wall cell, a passage along "
         "the free space's medial axis at the robot radius from the wall cells' centres (a door of the robot's width)",
     )
+    keep_clear: float = Field(
+        0.2,
+        ge=0,
+        description="m beyond the first level's clearance that a path is eased off mapped walls where the free space "
+        "allows (navkit.grid_planning.ease_path, as a Nav2 inflation cost keeps paths off walls; 0: the shortest path)",
+    )
     snap_radius: float = Field(1.0, ge=0, description="m; a start or goal in the inflated zone moves to the nearest free cell")
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between replans")
     block_check_distance: float = Field(5.0, gt=0, description="m of the path ahead checked against new obstacles")

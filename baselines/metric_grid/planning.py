@@ -8,7 +8,9 @@ has the same level); then, if allowed, the same with unknown cells counted as fr
 eroded once, when the map is loaded; a start or goal inside the eroded zone snaps to the nearest
 passable cell within ``snap_radius``. Obstacles the map lacks (``obstacles.UnmappedObstacles``) are blocked in
 every mask: with any of them remembered the masks are eroded again at each plan, only as far as the
-fallbacks need (``navkit.grid_planning.plan_path`` asks for them one by one).
+fallbacks need (``navkit.grid_planning.plan_path`` asks for them one by one). The path found is eased
+off the mapped walls where the free space allows, up to ``keep_clear`` beyond the first level's
+clearance (``navkit.grid_planning.ease_path``: NavTopo's local planner does the same).
 
 Raster convention (``occupancy.GridMap``): ``cells[row, col]``, row ↔ y, col ↔ x; points and paths
 are (N, 2) metric in the map frame.
@@ -20,11 +22,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
-from navkit.grid_planning import PlannedPath, plan_path
+from navkit.grid_planning import PlannedPath, plan_path, raster_clearance
 from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 
 from .config import PlanningConfig
 from .occupancy import GridMap
+
+CLEARANCE_CAP = 255  # squared cells
 
 
 class GridPlanner:
@@ -47,14 +51,18 @@ class GridPlanner:
         kinds = ("known", "unknown") if config.unknown_fallback else ("known",)
         self.attempts: list[tuple[str, float, float | None]] = [(kind, r, m) for kind in kinds for r, m in steps]
         squared = {kind: grid_search.clearance_squared(self._base(kind)) for kind in kinds}
+        # the known free space's clearance, for easing paths: squared cells, capped in 8 bits (1.6 m
+        # at 0.1 m cells, more than any easing asks)
+        self._clearance = np.minimum(squared["known"], CLEARANCE_CAP).astype(np.uint8)
+        self.prefer = wide + config.keep_clear
         self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
             key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
         }
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the eroded masks (the planner's derived state)."""
-        return sum(int(mask.nbytes) for mask in self.eroded.values())
+        """Bytes of the eroded masks and the clearance raster (the planner's derived state)."""
+        return sum(int(mask.nbytes) for mask in self.eroded.values()) + int(self._clearance.nbytes)
 
     def _base(self, kind: str) -> NDArray[np.bool_]:
         return self._known_free if kind == "known" else self._not_occupied
@@ -74,7 +82,10 @@ class GridPlanner:
             squared = grid_search.clearance_squared(self._base(kind) & ~blocked)
             return grid_search.passable(squared, radius, grid.resolution, medial)
 
-        return plan_path(mask, frame, start_xy, goal_xy, snap, levels=len(self.attempts))
+        clearance = raster_clearance(self._clearance, frame)
+        return plan_path(
+            mask, frame, start_xy, goal_xy, snap, levels=len(self.attempts), clearance_at=clearance, prefer_m=self.prefer
+        )
 
     def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
         """One line on a plan that found nothing: from and to (map frame), the levels tried, and on
