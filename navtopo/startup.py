@@ -145,6 +145,12 @@ class StartupConfig(BaseModel):
     )
     ambiguous_looks: int = Field(8, ge=1, description="looks after which equally supported rivals make the robot explore ...")
     ambiguous_support: int = Field(2, ge=0, description="... 'equally': the two best supports this close")
+    lone_explore_distance: float = Field(
+        6.0,
+        ge=0,
+        description="m driven by a lone hypothesis verified in one location before the robot explores instead (driving "
+        "by the right one toward the goal leaves the room; by a look-alike of a room the map never entered, it may not)",
+    )
     explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
     timeout: float = Field(90.0, gt=0, description="s of simulated time without a commitment: not_localized")
 
@@ -541,15 +547,22 @@ class Startup:
         need never tell apart (along a corridor of identical rooms it may stop between them); the
         robot explores instead, away from where it has driven, toward a corridor's end or a
         junction, which the far evidence tells apart. Or one hypothesis alone, verified at twice
-        ``ambiguous_looks`` looks in fewer than ``confirm_places`` locations: it cannot be committed
-        until the robot leaves the location, and driving by it did not (a start in a room the map
-        never entered, driving by its look-alike elsewhere, went round that room for 90 s)."""
+        ``ambiguous_looks`` looks in fewer than ``confirm_places`` locations, driven by for
+        ``lone_explore_distance``: it cannot be committed until the robot leaves the location, and
+        driving by it did not (a start in a room the map never entered, driving by its look-alike
+        elsewhere, went round that room for 90 s). Not sooner: driving by the right place toward the
+        goal leaves the room, and exploring from the start (16 looks, 3.4 m) kept a robot in its
+        room for 90 s."""
         if len(self.hypotheses) == 1:
             # one place, verified for twice as long in one location alone: driving by it has not left
             # the room (it may be a look-alike of a room the map never entered), and only a second
             # location can confirm it
-            h = self.hypotheses[0]
-            return len(h.places) < self.config.confirm_places and h.support >= 2 * self.config.ambiguous_looks
+            h, config = self.hypotheses[0], self.config
+            return (
+                len(h.places) < config.confirm_places
+                and h.support >= 2 * config.ambiguous_looks
+                and self._odometer - h.odometer_start >= config.lone_explore_distance
+            )
         if len(self.hypotheses) < 2:
             return False
         first, second = sorted((h.support for h in self.hypotheses), reverse=True)[:2]
@@ -589,6 +602,7 @@ class Explorer:
         self.until = 0.0  # the start-up odometer reading where the current exploring move ends
         self._progress_mark: tuple[float, float] | None = None  # (stamp, start-up odometer) of the last progress
         self.trail: list[NDArray[np.float64]] = []  # where the robot drove (odometry frame)
+        self.heading: float | None = None  # the last exploring move's direction (odometry frame, rad)
 
     def record(self, odom: NDArray) -> None:
         """Where the robot drives, every 0.25 m: exploring moves lead away from it."""
@@ -639,6 +653,7 @@ class Explorer:
             if path is None:
                 return Command(0.0, self.follower.config.max_angular / 2)
             self.move = (np.asarray(obs.odom, dtype=np.float64).copy(), path)
+            self.heading = float(obs.odom[2] + np.arctan2(path[-1, 1], path[-1, 0]))
             self.follower.set_path(path)
             counters["explore_moves"] += 1
         start_odom, _ = self.move
@@ -664,7 +679,10 @@ class Explorer:
         through its door, not round the room again (judged by the points within reach alone, a room
         toured left nothing new, and the explorer went round it for 40 s), and along a corridor
         onward rather than into the next room (on a wing of identical rooms only the corridor's
-        ends tell the places apart)."""
+        ends tell the places apart). No move turns back (more than 90° from the last one) while a
+        direction that does not shows new ground: what a scan shows through a door changes as the
+        robot moves, and a room's two doors each seen newest in turn sent the robot back and forth
+        between them for 80 s."""
         grid_config = self.grid_config
         grid = grid_from_points(obs.points, grid_config)
         # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
@@ -711,6 +729,10 @@ class Explorer:
         near = novelty(ends[ok])
         far = np.tile(beyond, 3)[ok]
         forward = np.cos(np.tile(angles, 3))[ok]
+        if self.heading is not None:
+            onward = np.cos(np.tile(angles, 3)[ok] + odom[2] - self.heading) >= 0.0
+            if (onward & (far >= 1.0)).any():
+                ok, near, far, forward = ok[onward], near[onward], far[onward], forward[onward]
         # the newest ground along the direction in 1 m steps, then the end's novelty in 0.5 m
         # steps, then forward
         order = np.lexsort((-forward, -np.round(near / 0.5), -np.round(far)))
