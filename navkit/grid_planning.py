@@ -19,9 +19,9 @@ paths off walls where the corridor is wide, the found path is eased, like an ela
 is pushed up the clearance's slope until it is ``prefer_m`` clear or at the middle of its passage,
 while a smoothing pull keeps the band taut; the ends stay put. A point the push would take off the
 level's passable cells stays where it was; if any stretch of the eased path leaves them, the found
-path is kept as it was. The eased path is then thinned (Douglas-Peucker) by a rule that never trades
-clearance for length: a straight leg replaces a stretch only if it keeps as clear as that stretch
-(up to ``prefer_m``). The same rule thins the scenario generator's routes (``simplify_clear``).
+path is kept as it was. The eased path is then thinned (Douglas-Peucker at a quarter cell, which loses
+at most that much clearance; ``simplify_clear``, whose clearance rule thins the scenario
+generator's routes).
 
 Raster convention (``navkit.grid_search``): ``mask[row, col]``, row ↔ y, col ↔ x, the centre of
 cell (r, c) at ``origin + ((c + 0.5) * resolution, (r + 0.5) * resolution)``.
@@ -29,16 +29,18 @@ cell (r, c) at ``origin + ((c + 0.5) * resolution, (r + 0.5) * resolution)``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
 from navkit.raster import GridFrame
 
-ClearanceAt = Callable[[NDArray[np.float64]], NDArray[np.float64]]  # (N, 2) points -> (N,) clearance, m
+ClearanceAt = Callable[[NDArray[np.float64]], NDArray[np.float64]]  # (N, 2) points -> (N,) clearance
 
 
 @dataclass(frozen=True)
@@ -59,8 +61,9 @@ def plan_path(
     snap_cells: int = 0,
     levels: int | None = None,
     exact_goal: bool = True,
-    clearance_at: ClearanceAt | None = None,
+    clearance: NDArray | None = None,
     prefer_m: float = 0.0,
+    hold_m: float = 0.0,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
@@ -69,9 +72,11 @@ def plan_path(
     exact_goal: end at ``goal_xy`` itself (default); False ends at the free cell the goal snapped
     to, for a goal the robot does not fit at (a goal estimated off into a wall is approached, never
     driven into).
-    clearance_at, prefer_m: the free space's clearance (points -> metres, in the convention the
-    levels' radii use) and the clearance the path keeps where the free space allows: the path found
-    is eased (``ease_path``, on the level's passable cells). None (default): as found.
+    clearance, prefer_m: the free space's squared clearance in cells (``grid_search.clearance_squared``
+    or a capped uint8 copy; to non-free cells' centres, as the levels' radii count it) and the
+    clearance the path keeps where the free space allows: the path found is eased (``ease_path``,
+    on the level's passable cells; its points less clear than ``hold_m`` stay, e.g. on a narrow
+    passage's medial line). None (default): as found.
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -89,51 +94,21 @@ def plan_path(
             continue
         end_xy = goal_xy if exact_goal else frame.to_world(cells[-1:])[0]
         points = waypoints(frame, cells, start_xy, end_xy)
-        if clearance_at is not None and prefer_m > 0.0:
-            points = ease_path(points, clearance_at, cells_of(passable, frame), prefer_m, frame.resolution)
+        if clearance is not None and prefer_m > 0.0:
+            points = ease_path(points, frame, clearance, passable, prefer_m, hold_m)
         return PlannedPath(points, level)
     return None
 
 
-def cells_of(mask: NDArray[np.bool_], frame: GridFrame) -> Callable[[NDArray[np.float64]], NDArray[np.bool_]]:
-    """Points (N, 2) -> (N,) whether each lies in a set cell of ``mask`` (False off the raster)."""
-
-    def at(xy: NDArray[np.float64]) -> NDArray[np.bool_]:
-        cells = frame.to_cell(xy)
-        rows, cols = cells[:, 0], cells[:, 1]
-        inside = (rows >= 0) & (rows < mask.shape[0]) & (cols >= 0) & (cols < mask.shape[1])
-        out = np.zeros(len(cells), bool)
-        out[inside] = mask[rows[inside], cols[inside]]
-        return out
-
-    return at
-
-
-def raster_clearance(squared: NDArray, frame: GridFrame) -> ClearanceAt:
-    """Points (N, 2) -> clearance in metres, bilinear between cell centres, from a raster of squared
-    clearances in cells (``grid_search.clearance_squared``, or a capped uint8 copy of it): the
-    distance to the nearest non-free cell's centre, as the planning levels' radii count it."""
-    res = frame.resolution
-
-    def at(xy: NDArray[np.float64]) -> NDArray[np.float64]:
-        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        col = (xy[:, 0] - frame.origin[0]) / res + frame.origin_cell[1] - 0.5
-        row = (xy[:, 1] - frame.origin[1]) / res + frame.origin_cell[0] - 0.5
-        r0 = np.clip(np.floor(row).astype(np.int64), 0, max(squared.shape[0] - 2, 0))
-        c0 = np.clip(np.floor(col).astype(np.int64), 0, max(squared.shape[1] - 2, 0))
-        fr = np.clip(row - r0, 0.0, 1.0)
-        fc = np.clip(col - c0, 0.0, 1.0)
-        r1 = np.minimum(r0 + 1, squared.shape[0] - 1)
-        c1 = np.minimum(c0 + 1, squared.shape[1] - 1)
-
-        def d(r: NDArray, c: NDArray) -> NDArray[np.float64]:
-            return np.sqrt(squared[r, c].astype(np.float64))
-
-        top = d(r0, c0) * (1 - fc) + d(r0, c1) * fc
-        bottom = d(r1, c0) * (1 - fc) + d(r1, c1) * fc
-        return (top * (1 - fr) + bottom * fr) * res
-
-    return at
+def waypoints(frame: GridFrame, cells: NDArray, start_xy: NDArray, goal_xy: NDArray) -> NDArray[np.float64]:
+    """A cell path as metric points with the exact start and goal at its ends; an end cell more than
+    a cell and a half from its exact point stays, as the way into the planned free space."""
+    points = frame.to_world(cells)
+    near = 1.5 * frame.resolution
+    head = points[1:] if np.hypot(*(points[0] - start_xy)) <= near else points
+    if len(head) and np.hypot(*(head[-1] - goal_xy)) <= near:
+        head = head[:-1]
+    return np.vstack([start_xy[None], head, goal_xy[None]])
 
 
 EASE_ITERATIONS = 40  # push-and-pull rounds of ``ease_path``
@@ -143,41 +118,140 @@ EASE_RAMP = 3.0  # points move fully from this many ``prefer_m`` along the path 
 
 def ease_path(
     points: NDArray[np.float64],
-    clearance_at: ClearanceAt,
-    passable_at: Callable[[NDArray[np.float64]], NDArray[np.bool_]],
+    frame: GridFrame,
+    squared: NDArray,
+    passable: NDArray[np.bool_],
     prefer_m: float,
-    step: float,
+    hold_m: float = 0.0,
 ) -> NDArray[np.float64]:
     """The path (K, 2) eased off the walls where there is room (see the module docstring): points
-    every ``step`` metres pushed up the clearance (``clearance_at``) toward ``prefer_m`` and pulled
-    taut, never off ``passable_at``; the ends keep their place, and the points near them move the
-    less the nearer they are (fully from ``EASE_RAMP * prefer_m`` along the path: no sharp bend
-    between an end near a wall and the eased path). Then thinned by
-    ``simplify_clear``. The path as given if any stretch of the eased one leaves ``passable_at``."""
+    every cell along it pushed up the clearance (``squared``: ``grid_search.clearance_squared`` of
+    the free space, or a capped uint8 copy, in ``frame``) toward ``prefer_m`` and pulled taut, never
+    off the ``passable`` cells nor below the clearance a point had or ``prefer_m``; points less clear
+    than ``hold_m`` (a narrow passage's medial line) and the ends keep their place, and the points near them move the less
+    the nearer they are (fully from ``EASE_RAMP * prefer_m`` along the path: no sharp bend between
+    an end near a wall and the eased path). Then thinned by ``simplify_clear`` at a quarter cell,
+    a chord kept only if it is as clear as the points it replaces (up to ``prefer_m``). The path as
+    given if any stretch of the thinned one leaves the passable cells. The rounds are compiled."""
     points = np.asarray(points, dtype=np.float64)
+    res = frame.resolution
     if len(points) < 2 or prefer_m <= 0.0:
         return points
-    dense = densify(points, step)
+    dense = densify(points, res)
     if len(dense) < 3:
         return points
     arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(dense, axis=0).T))])
-    weight = np.clip(np.minimum(arc, arc[-1] - arc) / (EASE_RAMP * prefer_m), 0.0, 1.0)[1:-1, None]
-    h = step / 2.0
-    shifts = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
-    eased = dense.copy()
-    for _ in range(EASE_ITERATIONS):
-        inner = eased[1:-1]
-        probes = clearance_at((inner[:, None, :] + shifts[None]).reshape(-1, 2)).reshape(-1, 4)
-        slope = np.stack([probes[:, 0] - probes[:, 1], probes[:, 2] - probes[:, 3]], axis=1) / (2 * h)
-        short = np.clip(prefer_m - clearance_at(inner), 0.0, h)[:, None]
-        pull = EASE_PULL * (0.5 * (eased[:-2] + eased[2:]) - inner)
-        moved = inner + weight * (short * slope + pull)
-        stay = ~passable_at(moved)
-        moved[stay] = inner[stay]
-        eased[1:-1] = moved
-    if not passable_at(densify(eased, step / 2.0)).all():
-        return points
-    return simplify_clear(eased, clearance_at, tolerance=step / 4.0, cap=prefer_m, step=step / 2.0)
+    weight = np.clip(np.minimum(arc, arc[-1] - arc) / (EASE_RAMP * prefer_m), 0.0, 1.0)
+    # continuous cell coordinates: cell (r, c) spans [r, r + 1) x [c, c + 1)
+    col = (dense[:, 0] - frame.origin[0]) / res + frame.origin_cell[1]
+    row = (dense[:, 1] - frame.origin[1]) / res + frame.origin_cell[0]
+    squared = np.ascontiguousarray(squared)
+    passable = np.ascontiguousarray(passable, dtype=np.bool_)
+    _ease_kernel(row, col, squared, passable, prefer_m / res, hold_m / res, weight, EASE_ITERATIONS, EASE_PULL)
+    eased = np.stack(
+        [(col - frame.origin_cell[1]) * res + frame.origin[0], (row - frame.origin_cell[0]) * res + frame.origin[1]], 1
+    )
+    eased[0], eased[-1] = dense[0], dense[-1]
+    thinned = simplify_clear(eased, clearance_at(squared, frame), tolerance=res / 4.0, cap=prefer_m, step=res / 4.0, slack=0.0)
+    cells = np.stack(
+        [
+            (thinned[:, 1] - frame.origin[1]) / res + frame.origin_cell[0],
+            (thinned[:, 0] - frame.origin[0]) / res + frame.origin_cell[1],
+        ],
+        1,
+    )
+    return thinned if _stays_on(passable, cells) else points
+
+
+def clearance_at(squared: NDArray, frame: GridFrame) -> ClearanceAt:
+    """Points (N, 2) -> metres to the nearest non-free cell's centre, bilinear between cell centres,
+    from a raster of squared clearances in cells in ``frame`` (``ease_path``'s measure)."""
+    res = frame.resolution
+
+    def at(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        row = (xy[:, 1] - frame.origin[1]) / res + frame.origin_cell[0]
+        col = (xy[:, 0] - frame.origin[0]) / res + frame.origin_cell[1]
+        return _clearances_cells(squared, row, col) * res
+
+    return at
+
+
+@njit(cache=True)
+def _clearances_cells(squared, row, col):
+    out = np.empty(row.shape[0])
+    for i in range(row.shape[0]):
+        out[i] = _clearance_cells(squared, row[i], col[i])
+    return out
+
+
+@njit(cache=True)
+def _clearance_cells(squared, row, col):
+    """Bilinear clearance (cells) between cell centres at a continuous (row, col); clamped to the raster."""
+    height, width = squared.shape
+    r = min(max(row - 0.5, 0.0), height - 1.0)
+    c = min(max(col - 0.5, 0.0), width - 1.0)
+    r0 = min(int(r), max(height - 2, 0))
+    c0 = min(int(c), max(width - 2, 0))
+    r1 = min(r0 + 1, height - 1)
+    c1 = min(c0 + 1, width - 1)
+    fr = min(r - r0, 1.0)
+    fc = min(c - c0, 1.0)
+    top = math.sqrt(float(squared[r0, c0])) * (1.0 - fc) + math.sqrt(float(squared[r0, c1])) * fc
+    bottom = math.sqrt(float(squared[r1, c0])) * (1.0 - fc) + math.sqrt(float(squared[r1, c1])) * fc
+    return top * (1.0 - fr) + bottom * fr
+
+
+@njit(cache=True)
+def _on(passable, row, col):
+    r = int(math.floor(row))
+    c = int(math.floor(col))
+    return 0 <= r < passable.shape[0] and 0 <= c < passable.shape[1] and passable[r, c]
+
+
+@njit(cache=True)
+def _stays_on(passable, cells):
+    """Whether the polyline through ``cells`` (K, 2: continuous row, col) stays on the passable
+    cells, checked every quarter cell."""
+    for i in range(cells.shape[0] - 1):
+        d_row = cells[i + 1, 0] - cells[i, 0]
+        d_col = cells[i + 1, 1] - cells[i, 1]
+        parts = max(int(math.ceil(math.hypot(d_row, d_col) * 4.0)), 1)
+        for k in range(parts + 1):
+            if not _on(passable, cells[i, 0] + k / parts * d_row, cells[i, 1] + k / parts * d_col):
+                return False
+    return True
+
+
+@njit(cache=True)
+def _ease_kernel(row, col, squared, passable, prefer, hold, weight, iterations, pull):
+    """``ease_path``'s rounds on points in continuous cell coordinates (moved in place)."""
+    n = row.shape[0]
+    h = 0.5
+    for _ in range(iterations):
+        moved = False
+        for i in range(1, n - 1):
+            w = weight[i]
+            if w <= 0.0:
+                continue
+            clear = _clearance_cells(squared, row[i], col[i])
+            if clear < hold:
+                continue
+            short = min(max(prefer - clear, 0.0), h)
+            slope_r = (_clearance_cells(squared, row[i] + h, col[i]) - _clearance_cells(squared, row[i] - h, col[i])) / (2 * h)
+            slope_c = (_clearance_cells(squared, row[i], col[i] + h) - _clearance_cells(squared, row[i], col[i] - h)) / (2 * h)
+            new_r = row[i] + w * (short * slope_r + pull * (0.5 * (row[i - 1] + row[i + 1]) - row[i]))
+            new_c = col[i] + w * (short * slope_c + pull * (0.5 * (col[i - 1] + col[i + 1]) - col[i]))
+            if new_r == row[i] and new_c == col[i] or not _on(passable, new_r, new_c):
+                continue
+            # no point loses clearance below the preferred (the pull alone would take a path
+            # through a door of the robot's width off its middle line)
+            if _clearance_cells(squared, new_r, new_c) >= min(clear, prefer) - 1e-9:
+                row[i] = new_r
+                col[i] = new_c
+                moved = True
+        if not moved:
+            break
 
 
 def densify(points: NDArray[np.float64], step: float) -> NDArray[np.float64]:
@@ -199,67 +273,71 @@ def leg_clearances(points: NDArray, clearance_at: ClearanceAt, step: float) -> N
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 2:
         return np.zeros(0)
-    lengths = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return segment_clearances(points[:-1], points[1:], clearance_at, step)
+
+
+def segment_clearances(a: NDArray, b: NDArray, clearance_at: ClearanceAt, step: float) -> NDArray[np.float64]:
+    """(M,) the least clearance along each segment from ``a`` (M, 2) to ``b`` (M, 2), sampled every
+    ``step`` or nearer, both ends included (one ``clearance_at`` call for all)."""
+    lengths = np.linalg.norm(b - a, axis=1)
     counts = np.maximum(np.ceil(lengths / step).astype(np.int64), 1) + 1
     leg = np.repeat(np.arange(len(lengths)), counts)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     t = (np.arange(counts.sum()) - np.repeat(starts, counts)) / np.repeat(counts - 1, counts)
-    samples = points[leg] + t[:, None] * (points[leg + 1] - points[leg])
+    samples = a[leg] + t[:, None] * (b[leg] - a[leg])
     return np.minimum.reduceat(clearance_at(samples), starts)
 
 
 def simplify_clear(
     points: NDArray,
-    clearance_at: ClearanceAt,
+    clearance_at: ClearanceAt | None,
     tolerance: float,
-    cap: float,
-    step: float,
+    cap: float = 0.0,
+    step: float = 0.0,
     slack: float = 0.01,
     pinned: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.float64]:
     """Douglas-Peucker on a polyline (K, 2) with a clearance rule: a straight leg replaces a stretch
     only if it keeps as clear as the stretch's points do (less ``slack``), capped at ``cap``; legs are
-    sampled every ``step``. ``pinned`` points are kept, and the ends."""
+    sampled every ``step``. ``pinned`` points are kept, and the ends. The stretches are split a
+    level at a time, the legs of a level checked in one ``clearance_at`` call. ``clearance_at``
+    None: no clearance rule (plain Douglas-Peucker)."""
     points = np.asarray(points, dtype=np.float64)
     n = len(points)
     if n <= 2:
         return points.copy()
-    clear = clearance_at(points)
+    clear = clearance_at(points) if clearance_at is not None else None
     keep = np.zeros(n, bool) if pinned is None else np.asarray(pinned, bool).copy()
     keep[[0, -1]] = True
     anchors = np.nonzero(keep)[0]
-    stack = list(zip(anchors[:-1].tolist(), anchors[1:].tolist(), strict=True))
-    while stack:
-        i, j = stack.pop()
-        if j <= i + 1:
-            continue
-        a, b = points[i], points[j]
-        inner = points[i + 1 : j]
-        ab = b - a
-        norm2 = float(ab @ ab)
-        if norm2 < 1e-18:
-            distance = np.linalg.norm(inner - a, axis=1)
-        else:
-            t = np.clip((inner - a) @ ab / norm2, 0.0, 1.0)
-            distance = np.linalg.norm(inner - (a + t[:, None] * ab), axis=1)
-        k = int(np.argmax(distance))
-        if distance[k] <= tolerance:
-            need = min(float(clear[i : j + 1].min()), cap) - slack
-            if leg_clearances(np.stack([a, b]), clearance_at, step)[0] >= need:
-                continue
-        mid = i + 1 + k
-        keep[mid] = True
-        stack.append((i, mid))
-        stack.append((mid, j))
+    pending = np.array([(i, j) for i, j in zip(anchors[:-1].tolist(), anchors[1:].tolist(), strict=True) if j > i + 1])
+    while len(pending):
+        first, last = pending[:, 0], pending[:, 1]
+        # every stretch's inner points at once: the farthest from its chord (the first of equals)
+        counts = last - first - 1
+        offsets = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        owner = np.repeat(np.arange(len(pending)), counts)
+        inner = points[np.arange(counts.sum()) - np.repeat(offsets, counts) + first[owner] + 1]
+        a, ab = points[first][owner], (points[last] - points[first])[owner]
+        norm2 = np.einsum("ij,ij->i", ab, ab)
+        t = np.clip(np.einsum("ij,ij->i", inner - a, ab) / np.where(norm2 < 1e-18, 1.0, norm2), 0.0, 1.0)
+        t[norm2 < 1e-18] = 0.0
+        distance = np.linalg.norm(inner - (a + t[:, None] * ab), axis=1)
+        largest = np.maximum.reduceat(distance, offsets)
+        at_max = np.flatnonzero(distance == largest[owner])
+        _, where = np.unique(owner[at_max], return_index=True)
+        farthest = at_max[where] - offsets + first + 1
+        # a stretch within the tolerance of its chord: the chord must keep the stretch's clearance
+        fine = largest <= tolerance
+        near = np.flatnonzero(fine)
+        if clear is not None and clearance_at is not None and len(near):
+            least = segment_clearances(points[first[near]], points[last[near]], clearance_at, step)
+            spans = np.concatenate([np.arange(i, j + 1) for i, j in pending[near]])
+            bounds = np.concatenate([[0], np.cumsum(last[near] - first[near] + 1)[:-1]])
+            need = np.minimum(np.minimum.reduceat(clear[spans], bounds), cap) - slack
+            fine[near] = least >= need
+        split = ~fine
+        keep[farthest[split]] = True
+        halves = np.concatenate([np.stack([first[split], farthest[split]], 1), np.stack([farthest[split], last[split]], 1)])
+        pending = halves[halves[:, 1] > halves[:, 0] + 1]
     return points[keep]
-
-
-def waypoints(frame: GridFrame, cells: NDArray, start_xy: NDArray, goal_xy: NDArray) -> NDArray[np.float64]:
-    """A cell path as metric points with the exact start and goal at its ends; an end cell more than
-    a cell and a half from its exact point stays, as the way into the planned free space."""
-    points = frame.to_world(cells)
-    near = 1.5 * frame.resolution
-    head = points[1:] if np.hypot(*(points[0] - start_xy)) <= near else points
-    if len(head) and np.hypot(*(head[-1] - goal_xy)) <= near:
-        head = head[:-1]
-    return np.vstack([start_xy[None], head, goal_xy[None]])

@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
 from navkit.geometry import arc_lengths, compose, distance_to_polyline, inverse, transform_points
-from navkit.grid_planning import ClearanceAt, PlannedPath, plan_path, raster_clearance
+from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import CroppedGrid, GridConfig, mean_direction, wall_direction, warp_window, warped_bounds
@@ -64,10 +64,11 @@ class PlanningConfig(BaseModel):
         "stops (a path out to a vertex and back, round a place the graph joins the long way)",
     )
     keep_clear: float = Field(
-        0.2,
+        0.0,
         ge=0,
         description="m beyond the first level's clearance that a local path is eased off the known walls where the "
-        "free space allows (navkit.grid_planning.ease_path; as the baseline's; 0: the shortest path)",
+        "free space allows (navkit.grid_planning.ease_path, as the baseline's paths are; 0, the default: the shortest "
+        "path; 0.2 m cost 0.01-0.05 of efficiency on generated door scenes, BENCHMARKS.md, session 16)",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(
@@ -233,10 +234,10 @@ class UnionGrid:
             self._clearance[kind] = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
         return self._clearance[kind]
 
-    def clearance_at(self, kind: str) -> ClearanceAt:
-        """Points (N, 2, grid axes) -> metres to the nearest non-free cell of ``kind``'s centre
-        (``navkit.grid_planning.raster_clearance``; capped at ``CLEARANCE_CAP`` squared cells)."""
-        return raster_clearance(self._squared(kind), self.frame)
+    def clearance(self, kind: str) -> NDArray[np.uint8]:
+        """(H, W) squared distance in cells from each cell's centre to the nearest non-free cell of
+        ``kind``'s (``grid_search.clearance_squared``, capped at ``CLEARANCE_CAP``)."""
+        return self._squared(kind)
 
     def fits(self, xy: NDArray, kind: str, radius: float) -> bool:
         """Whether the point (2,) is ``radius`` clear of the non-free cells of ``kind`` (True off the
@@ -460,8 +461,10 @@ class LocalPlanner:
                 ends[1],
                 snap,
                 exact_goal=fits,
-                clearance_at=union.clearance_at("known"),
-                prefer_m=self.wide + self.config.keep_clear,
+                clearance=union.clearance("known"),
+                # a narrow passage's path is fitted to the scan as found (``narrow_part``)
+                prefer_m=0.0 if medial is not None or not self.config.keep_clear else self.wide + self.config.keep_clear,
+                hold_m=self.tight,
             )
             if found is not None:
                 planned = PlannedPath(found.points, level)

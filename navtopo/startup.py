@@ -38,10 +38,12 @@ at a corridor's end is found again in the next identical room, where no beam rea
 The commitment rule, as a test. Commit to ``h`` only when all of these hold:
   1. ``h`` is the only hypothesis left, and the look that commits verified it;
   2. it has been verified at ``confirm_looks`` looks and survived ``confirm_distance`` metres, and
-     in ``confirm_places`` locations (or, if set, over ``confirm_distance_one_place`` metres): a room
-     and its look-alike agree from inside however far the robot drives about it (a start in a room
-     the map never entered, 8.9 m of dithering in it, committed 5.3 m off to the one room elsewhere
-     that matched), the corridor outside the door tells them apart;
+     in ``confirm_places`` locations at places ``confirm_span`` metres apart (or, if set, over
+     ``confirm_distance_one_place`` metres): a room and its look-alike agree from inside however far
+     the robot drives about it (a start in a room the map never entered, 8.9 m of dithering in it,
+     committed 5.3 m off to the one room elsewhere that matched), the corridor outside the door
+     tells them apart; and a location's grid reaches into the rooms round it, so the look-alike's
+     tracker changed location while the robot was still in the room (committed 5.3 m off again);
   3. since its last rival fell it has been verified at ``confirm_alone_looks`` looks over
      ``confirm_alone_distance`` metres (a rival dropped at one look may have been the right place:
      place recognition and every location's check get the chance to find it again);
@@ -101,6 +103,12 @@ class StartupConfig(BaseModel):
     confirm_distance: float = Field(2.0, ge=0, description="m of motion a hypothesis must survive before it is committed")
     confirm_places: int = Field(
         2, ge=1, description="locations the hypothesis must have been verified in before it is committed ..."
+    )
+    confirm_span: float = Field(
+        5.0,
+        ge=0,
+        description="... and at places this far apart (m, by odometry): a location's grid reaches into the rooms round "
+        "it, so a look-alike room's tracker changed location without the robot leaving the room",
     )
     confirm_distance_one_place: float | None = Field(
         None,
@@ -168,6 +176,21 @@ class Hypothesis:
     alone_since: float | None = None  # the start-up odometer when its last rival fell (None: rivals live)
     alone_support: int = 0  # looks that verified it since then
     contradicted: int = 0  # the scan's beams its map contradicted at the last look weighed by the far evidence
+    spots: list[NDArray[np.float64]] = field(default_factory=list)  # odometry xy of its verified looks, 0.5 m apart
+
+    def verified_at(self, odom: NDArray) -> None:
+        """A look verified it with the robot at ``odom`` (odometry frame)."""
+        xy = np.asarray(odom, dtype=np.float64)[:2].copy()
+        if not self.spots or float(np.hypot(*(xy - self.spots[-1]))) >= 0.5:
+            self.spots.append(xy)
+
+    @property
+    def span(self) -> float:
+        """m between the two farthest apart places it was verified at."""
+        if len(self.spots) < 2:
+            return 0.0
+        spots = np.array(self.spots)
+        return float(np.hypot(*(spots[:, None, :] - spots[None, :, :]).transpose(2, 0, 1)).max())
 
     @property
     def vertex(self) -> int:
@@ -365,6 +388,8 @@ class Startup:
             if ok and not against:
                 h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
                 h.places.add(h.vertex)
+                if self._last_odom is not None:
+                    h.verified_at(self._last_odom)
                 h.alone_support += int(h.alone_since is not None)
             else:
                 h.misses += int(telling or against)
@@ -408,7 +433,9 @@ class Startup:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 tracker.last_verified = True  # this look verified it
-                self.hypotheses.append(Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex}))
+                hypothesis = Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex})
+                hypothesis.verified_at(obs.odom)
+                self.hypotheses.append(hypothesis)
                 self.seen += 1
                 added += 1
         alone = self._odometer if len(self.hypotheses) == 1 else None
@@ -528,7 +555,9 @@ class Startup:
             return None
         # a room and its mirror image agree from inside; the corridor outside the door tells them apart
         one_place = config.confirm_distance_one_place
-        if len(h.places) >= config.confirm_places or (one_place is not None and moved >= one_place):
+        if len(h.places) >= config.confirm_places and h.span >= config.confirm_span:
+            return h
+        if one_place is not None and moved >= one_place:
             return h
         return None
 

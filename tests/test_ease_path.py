@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from navkit import grid_search
-from navkit.grid_planning import cells_of, densify, leg_clearances, plan_path, raster_clearance
+from navkit.grid_planning import densify, leg_clearances, plan_path
 from navkit.raster import GridFrame
 
 RES = 0.1
@@ -16,12 +16,38 @@ WIDE = RADIUS + RES / 2 + 0.1  # the systems' first level: radius, half a cell, 
 PREFER = WIDE + 0.2
 
 
+def raster_clearance(squared: np.ndarray, frame: GridFrame):
+    """Points (N, 2) -> metres to the nearest non-free cell's centre, bilinear between cell centres."""
+    from scipy import ndimage
+
+    distance = np.sqrt(squared) * frame.resolution
+
+    def at(xy):
+        rc = (np.asarray(xy, float).reshape(-1, 2)[:, ::-1] - frame.origin[::-1]) / frame.resolution - 0.5
+        return ndimage.map_coordinates(distance, rc.T, order=1, mode="nearest")
+
+    return at
+
+
+def cells_of(mask: np.ndarray, frame: GridFrame):
+    """Points (N, 2) -> whether each lies in a set cell of ``mask``."""
+
+    def at(xy):
+        cells = frame.to_cell(xy)
+        inside = (cells >= 0).all(1) & (cells[:, 0] < mask.shape[0]) & (cells[:, 1] < mask.shape[1])
+        out = np.zeros(len(cells), bool)
+        out[inside] = mask[cells[inside, 0], cells[inside, 1]]
+        return out
+
+    return at
+
+
 def _plan(free: np.ndarray, start, goal, prefer: float = 0.0):
     frame = GridFrame(np.zeros(2), RES)
     squared = grid_search.clearance_squared(free)
     masks = [grid_search.passable(squared, r, RES) for r in (WIDE, RADIUS + RES / 2)]
     clearance = raster_clearance(squared, frame)
-    planned = plan_path(masks, frame, start, goal, clearance_at=clearance, prefer_m=prefer)
+    planned = plan_path(masks, frame, start, goal, clearance=squared, prefer_m=prefer)
     assert planned is not None
     return planned, clearance, masks[planned.level], frame
 

@@ -8,10 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from baselines.metric_grid.config import PlanningConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.system import MetricGrid, MetricGridConfig
-from navkit.grid_planning import plan_path
-from navkit.raster import GridFrame
+from navkit import grid_search
+from navkit.grid_planning import densify, plan_path
+from navkit.raster import FREE, GridFrame
 from runners.systems import GroundTruth, SystemContext, get_system
 from scenarios import load_scenario
 
@@ -43,9 +45,11 @@ def test_the_baseline_and_the_oracle_plan_the_same_paths_as_before_the_extractio
     free space) before both called ``plan_path``. The baseline's are identical. The oracle's are
     identical for the trials; where a random end lay deep in the inflated zone near a wall, the
     oracle used to drop the cell it snapped to and head straight for the next vertex, across the
-    inflated zone; it now keeps that cell as the way into free space, the baseline's rule."""
+    inflated zone; it now keeps that cell as the way into free space, the baseline's rule. The
+    baseline's shortest paths, that is: without easing them off the walls (``keep_clear`` 0;
+    the eased ones are pinned against these below)."""
     context = SystemContext(robot=tiny.spec.robot, sensor=tiny.spec.sensor)
-    baseline = MetricGrid(MetricGridConfig(), context)
+    baseline = MetricGrid(MetricGridConfig(planning=PlanningConfig(keep_clear=0.0)), context)
     baseline._prepare_navigation(GridMap(reference["map_cells"], reference["map_origin"], 0.1))
     truth = GroundTruth(world=tiny.world, world_from_map=np.zeros(3))
     entry = get_system("oracle")
@@ -60,6 +64,34 @@ def test_the_baseline_and_the_oracle_plan_the_same_paths_as_before_the_extractio
             assert np.array_equal(path, old), i
         else:
             assert np.array_equal(_without_snapped_ends(path, old), old), i
+
+
+def test_the_baseline_eases_its_paths_off_the_walls(reference, tiny):
+    """With its default ``keep_clear`` the baseline's paths between the same ends keep at least the
+    shortest paths' clearance from the map's walls, more where the shortest one hugs a wall with
+    room beside it, for a few per cent of length; the ends are the same."""
+    context = SystemContext(robot=tiny.spec.robot, sensor=tiny.spec.sensor)
+    baseline = MetricGrid(MetricGridConfig(), context)
+    grid = GridMap(reference["map_cells"], reference["map_origin"], 0.1)
+    baseline._prepare_navigation(grid)
+    squared = grid_search.clearance_squared(grid.cells == FREE)
+
+    def least(path: np.ndarray) -> float:
+        cells = grid.frame.to_cell(densify(path, 0.025)[1:-1])
+        return float(np.sqrt(squared[cells[:, 0], cells[:, 1]]).min()) * 0.1
+
+    gained = 0
+    for i, (start, goal) in enumerate(zip(reference["starts"], reference["goals"], strict=True)):
+        shortest, eased = reference[f"baseline_{i}"], baseline.plan(start, goal)
+        assert np.array_equal(eased[0], shortest[0]) and np.array_equal(eased[-1], shortest[-1]), i
+        assert least(eased) >= least(shortest) - 0.03, i
+        assert _length(eased) <= 1.05 * _length(shortest) + 0.2, i
+        gained += least(eased) > least(shortest) + 0.05
+    assert gained >= 3
+
+
+def _length(path: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(path, axis=0).T).sum())
 
 
 def test_fallback_levels_snapping_and_exact_ends():

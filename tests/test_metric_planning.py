@@ -47,10 +47,12 @@ def test_a_door_the_grid_drew_narrower_than_the_robot_radius_allows_is_passed_al
     jambs = occupied[np.abs(occupied[:, 0] - 4.05) < 0.06]
     samples = np.vstack([np.linspace(a, b, 50) for a, b in zip(planned.points[:-1], planned.points[1:], strict=True)])
     at_wall = samples[np.abs(samples[:, 0] - 4.05) < 0.05]
-    opening = grid.centres((grid.cells == FREE) & (np.arange(grid.cells.shape[1]) == 41)[None, :])
-    middle = float(opening[:, 1].mean())
-    assert len(at_wall) and np.abs(at_wall[:, 1] - middle).max() <= RES / 2 + 1e-6  # its middle cell or two
-    assert distance_to_polyline(jambs, samples).min() >= RADIUS - 1e-6
+    rows = np.flatnonzero(grid.cells[:, 41] == FREE)  # the opening's cells, bottom to top
+    middle = rows[(len(rows) - 1) // 2 : len(rows) // 2 + 1]  # its middle cell or two
+    assert len(at_wall) and np.isin(grid.frame.to_cell(at_wall)[:, 0], middle).all()
+    # to a millimetre: the path eased off the walls beyond the door leaves its middle cell on a chord
+    # that its thinning judged by clearances interpolated between cell centres
+    assert distance_to_polyline(jambs, samples).min() >= RADIUS - 1e-3
 
 
 def test_a_gap_the_robot_cannot_pass_stays_shut():

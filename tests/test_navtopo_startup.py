@@ -41,9 +41,14 @@ def _bookkeeping(count: int, **config) -> tuple[Startup, list[Hypothesis]]:
     return startup, hypotheses
 
 
-def _look(startup: Startup, hypotheses: list[Hypothesis], verdicts: list[bool], moved: float = 0.25) -> None:
-    """A look after ``moved`` metres that verifies ``hypotheses[k]`` iff ``verdicts[k]`` (dropped ones are not asked)."""
+def _look(
+    startup: Startup, hypotheses: list[Hypothesis], verdicts: list[bool], moved: float = 0.25, heading: float = 0.0
+) -> None:
+    """A look after ``moved`` metres (toward ``heading``, rad) that verifies ``hypotheses[k]`` iff
+    ``verdicts[k]`` (dropped ones are not asked)."""
     startup._odometer += moved
+    last = startup._last_odom if startup._last_odom is not None else np.zeros(3)
+    startup._last_odom = last + moved * np.array([np.cos(heading), np.sin(heading), 0.0])
     for h, ok in zip(hypotheses, verdicts, strict=True):
         h.tracker.last_verified = ok
     startup._weigh()
@@ -149,6 +154,22 @@ def test_a_place_verified_in_one_location_only_is_never_committed_however_far_th
     assert startup._committed() is room
 
 
+def test_two_locations_verified_without_leaving_a_room_commit_nothing():
+    """A location's grid reaches into the rooms round it: a look-alike room's tracker may change
+    location while the robot drives about the room. Two locations are not enough until the places
+    the hypothesis was verified at lie ``confirm_span`` apart."""
+    startup, (room,) = _bookkeeping(1)
+    room.alone_since = 0.0
+    room.places.add(1)
+    for k in range(60):  # 15 m of driving back and forth across a 3 m room
+        _look(startup, [room], [True], heading=0.0 if (k // 12) % 2 == 0 else np.pi)
+        assert startup._committed() is None
+    assert room.span < startup.config.confirm_span
+    for _ in range(20):  # out of the door and 5 m along the corridor beyond
+        _look(startup, [room], [True], heading=np.pi / 2)
+    assert room.span >= startup.config.confirm_span and startup._committed() is room
+
+
 def test_the_far_evidence_counts_against_the_contradicted_hypothesis_only():
     startup, (right, shifted) = _bookkeeping(2)
     for _ in range(2):
@@ -160,7 +181,7 @@ def test_the_far_evidence_counts_against_the_contradicted_hypothesis_only():
 
 
 def test_the_survivor_is_committed_only_after_it_has_been_verified_alone_for_a_while():
-    startup, both = _bookkeeping(2, confirm_places=1)
+    startup, both = _bookkeeping(2, confirm_places=1, confirm_span=0.0)
     right, _ = both
     config = startup.config
     for _ in range(4):

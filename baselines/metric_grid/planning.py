@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
-from navkit.grid_planning import PlannedPath, plan_path, raster_clearance
+from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 
 from .config import PlanningConfig
@@ -55,6 +55,7 @@ class GridPlanner:
         # at 0.1 m cells, more than any easing asks)
         self._clearance = np.minimum(squared["known"], CLEARANCE_CAP).astype(np.uint8)
         self.prefer = wide + config.keep_clear
+        self.hold = tight  # points on a narrow passage's medial line stay there
         self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
             key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
         }
@@ -82,9 +83,16 @@ class GridPlanner:
             squared = grid_search.clearance_squared(self._base(kind) & ~blocked)
             return grid_search.passable(squared, radius, grid.resolution, medial)
 
-        clearance = raster_clearance(self._clearance, frame)
         return plan_path(
-            mask, frame, start_xy, goal_xy, snap, levels=len(self.attempts), clearance_at=clearance, prefer_m=self.prefer
+            mask,
+            frame,
+            start_xy,
+            goal_xy,
+            snap,
+            levels=len(self.attempts),
+            clearance=self._clearance,
+            prefer_m=self.prefer,
+            hold_m=self.hold,
         )
 
     def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
