@@ -39,7 +39,15 @@ from navkit.geometry import arc_lengths, compose, distance_to_polyline, inverse,
 from navkit.grid_planning import PlannedPath, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, mean_direction, wall_direction, warp_window, warped_bounds
+from navtopo.local_grid import (
+    CroppedGrid,
+    GridConfig,
+    grid_from_points,
+    mean_direction,
+    wall_direction,
+    warp_window,
+    warped_bounds,
+)
 
 
 class PlanningConfig(BaseModel):
@@ -489,6 +497,39 @@ class LocalPlanner:
         xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
         far = union.values_at(xy, union.wall_distance, np.float32(np.inf)) > self.config.new_obstacle_distance
         return xy[far]
+
+
+# ---------------------------------------------------------------------------------------------
+# planning in the robot's own scan
+
+
+@dataclass(frozen=True)
+class ScanGrid:
+    """One scan's grid (``local_grid.grid_from_points``, robot frame) and the local planner's levels
+    on it: with the margin, then the robot's radius alone (a narrow door); in the scan's free space,
+    then between the walls it saw (a door seen at a slant leaves little free space)."""
+
+    grid: NDArray[np.uint8]
+    frame: GridFrame
+    masks: list[NDArray[np.bool_]]
+
+    @classmethod
+    def of(cls, points: NDArray, grid_config: GridConfig, local: LocalPlanner) -> ScanGrid:
+        grid = grid_from_points(points, grid_config)
+        # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
+        # moves have always been planned: not grid_frame's floor(x / res) + half, which can differ by
+        # a cell at a cell's edge
+        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
+        masks = [
+            grid_search.inflate_free(space, radius, frame.resolution)
+            for radius in (local.wide, local.tight)
+            for space in (grid == FREE, grid != OCCUPIED)
+        ]
+        return cls(grid, frame, masks)
+
+    def plan(self, end: NDArray, snap_cells: int = 5) -> PlannedPath | None:
+        """A path from the robot (the origin) to ``end`` (2,, robot frame) on the first level that has one."""
+        return plan_path(self.masks, self.frame, np.zeros(2), end, snap_cells=snap_cells)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -77,14 +77,12 @@ from scipy.ndimage import maximum_filter1d
 
 from navkit.follower import PathFollower
 from navkit.geometry import between, compose, distance_to_polyline, transform_points
-from navkit.grid_planning import plan_path
-from navkit.grid_search import inflate_free
-from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
+from navkit.raster import FREE, OCCUPIED, UNKNOWN, inside
 from navkit.scan import azimuth_bins, obstacle_points
 from navkit.types import Command, Observation
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.mapping import GraphMaintainer, moved_enough
-from navtopo.planning import LocalPlanner, UnionGrid, build_union_grid
+from navtopo.planning import LocalPlanner, ScanGrid, UnionGrid, build_union_grid
 from navtopo.scan_matching import PreparedGrid, prepare
 
 
@@ -712,21 +710,9 @@ class Explorer:
         direction that does not shows new ground: what a scan shows through a door changes as the
         robot moves, and a room's two doors each seen newest in turn sent the robot back and forth
         between them for 80 s."""
-        grid_config = self.grid_config
-        grid = grid_from_points(obs.points, grid_config)
-        # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
-        # moves have always been planned: not grid_frame's floor(x / res) + half, which can differ by
-        # a cell at a cell's edge
-        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        # the local planner's fallbacks: with its margin, then the robot's radius alone (a narrow
-        # door); in the scan's free space, then between the walls it saw (a door seen at a slant
-        # leaves little free space); the ends in free space it saw
-        masks = [
-            inflate_free(space, radius, frame.resolution)
-            for radius in (self.local.wide, self.local.tight)
-            for space in (grid == FREE, grid != OCCUPIED)
-        ]
-        passable = masks[-1] & (grid == FREE)
+        scan = ScanGrid.of(obs.points, self.grid_config, self.local)
+        grid, frame = scan.grid, scan.frame
+        passable = scan.masks[-1] & (grid == FREE)
         angles = np.radians(np.arange(0.0, 360.0, 15.0))
         reach = self.config.explore_distance
         directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)
@@ -766,7 +752,7 @@ class Explorer:
         # steps, then forward
         order = np.lexsort((-forward, -np.round(near / 0.5), -np.round(far)))
         for k in ok[order][:8]:
-            planned = plan_path(masks, frame, np.zeros(2), ends[k], snap_cells=5)
+            planned = scan.plan(ends[k])
             if planned is not None:
                 return planned.points
         return None
