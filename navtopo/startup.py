@@ -103,7 +103,7 @@ class StartupConfig(BaseModel):
         2, ge=1, description="locations the hypothesis must have been verified in before it is committed ..."
     )
     confirm_span: float = Field(
-        5.0,
+        3.0,
         ge=0,
         description="... and at places this far apart (m, by odometry): a location's grid reaches into the rooms round "
         "it, so a look-alike room's tracker changed location without the robot leaving the room",

@@ -161,8 +161,8 @@ def test_two_locations_verified_without_leaving_a_room_commit_nothing():
     startup, (room,) = _bookkeeping(1)
     room.alone_since = 0.0
     room.places.add(1)
-    for k in range(60):  # 15 m of driving back and forth across a 3 m room
-        _look(startup, [room], [True], heading=0.0 if (k // 12) % 2 == 0 else np.pi)
+    for k in range(60):  # 15 m of driving back and forth across a 2.5 m room
+        _look(startup, [room], [True], heading=0.0 if (k // 10) % 2 == 0 else np.pi)
         assert startup._committed() is None
     assert room.span < startup.config.confirm_span
     for _ in range(20):  # out of the door and 5 m along the corridor beyond
