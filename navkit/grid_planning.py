@@ -64,6 +64,7 @@ def plan_path(
     clearance: NDArray | None = None,
     prefer_m: float = 0.0,
     hold_m: float = 0.0,
+    horizon_m: float | None = None,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
@@ -76,7 +77,7 @@ def plan_path(
     or a capped uint8 copy; to non-free cells' centres, as the levels' radii count it) and the
     clearance the path keeps where the free space allows: the path found is eased (``ease_path``,
     on the level's passable cells; its points less clear than ``hold_m`` stay, e.g. on a narrow
-    passage's medial line). None (default): as found.
+    passage's medial line; only its first ``horizon_m`` metres, if set). None (default): as found.
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -95,7 +96,7 @@ def plan_path(
         end_xy = goal_xy if exact_goal else frame.to_world(cells[-1:])[0]
         points = waypoints(frame, cells, start_xy, end_xy)
         if clearance is not None and prefer_m > 0.0:
-            points = ease_path(points, frame, clearance, passable, prefer_m, hold_m)
+            points = ease_path(points, frame, clearance, passable, prefer_m, hold_m, horizon_m)
         return PlannedPath(points, level)
     return None
 
@@ -123,6 +124,7 @@ def ease_path(
     passable: NDArray[np.bool_],
     prefer_m: float,
     hold_m: float = 0.0,
+    horizon_m: float | None = None,
 ) -> NDArray[np.float64]:
     """The path (K, 2) eased off the walls where there is room (see the module docstring): points
     every cell along it pushed up the clearance (``squared``: ``grid_search.clearance_squared`` of
@@ -132,11 +134,19 @@ def ease_path(
     the nearer they are (fully from ``EASE_RAMP * prefer_m`` along the path: no sharp bend between
     an end near a wall and the eased path). Then thinned by ``simplify_clear`` at a quarter cell,
     a chord kept only if it is as clear as the points it replaces (up to ``prefer_m``). The path as
-    given if any stretch of the thinned one leaves the passable cells. The rounds are compiled."""
+    given if any stretch of the thinned one leaves the passable cells. The rounds are compiled.
+    ``horizon_m``: only the first so many metres are eased (the point there stays put), the rest is
+    kept as found: a robot that plans again every few seconds drives only the near part of a path,
+    and the easing's cost grows with the length eased."""
     points = np.asarray(points, dtype=np.float64)
     res = frame.resolution
     if len(points) < 2 or prefer_m <= 0.0:
         return points
+    if horizon_m is not None:
+        head, tail = split_at(points, horizon_m)
+        if len(tail) > 1:
+            eased = ease_path(head, frame, squared, passable, prefer_m, hold_m)
+            return np.vstack([eased, tail[1:]])
     dense = densify(points, res)
     if len(dense) < 3:
         return points
@@ -252,6 +262,18 @@ def _ease_kernel(row, col, squared, passable, prefer, hold, weight, iterations, 
                 moved = True
         if not moved:
             break
+
+
+def split_at(points: NDArray[np.float64], arc: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The polyline (K, 2) cut ``arc`` metres along it: (the part before, ending at the cut point; the
+    part after, starting there). Past its end: (all of it, its last point alone)."""
+    points = np.asarray(points, dtype=np.float64)
+    lengths = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    if arc >= lengths[-1]:
+        return points, points[-1:]
+    i = int(np.searchsorted(lengths, arc, side="right")) - 1
+    cut = points[i] + (arc - lengths[i]) / (lengths[i + 1] - lengths[i]) * (points[i + 1] - points[i])
+    return np.vstack([points[: i + 1], cut[None]]), np.vstack([cut[None], points[i + 1 :]])
 
 
 def densify(points: NDArray[np.float64], step: float) -> NDArray[np.float64]:

@@ -12,7 +12,7 @@ from baselines.metric_grid.config import PlanningConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.system import MetricGrid, MetricGridConfig
 from navkit import grid_search
-from navkit.grid_planning import densify, plan_path
+from navkit.grid_planning import densify, plan_path, split_at
 from navkit.raster import FREE, GridFrame
 from runners.systems import GroundTruth, SystemContext, get_system
 from scenarios import load_scenario
@@ -69,15 +69,18 @@ def test_the_baseline_and_the_oracle_plan_the_same_paths_as_before_the_extractio
 def test_the_baseline_eases_its_paths_off_the_walls(reference, tiny):
     """With its default ``keep_clear`` the baseline's paths between the same ends keep at least the
     shortest paths' clearance from the map's walls, more where the shortest one hugs a wall with
-    room beside it, for a few per cent of length; the ends are the same."""
+    room beside it (over the first ``keep_clear_horizon`` metres, the part eased), for a few per cent
+    of length; the ends are the same."""
     context = SystemContext(robot=tiny.spec.robot, sensor=tiny.spec.sensor)
     baseline = MetricGrid(MetricGridConfig(), context)
     grid = GridMap(reference["map_cells"], reference["map_origin"], 0.1)
     baseline._prepare_navigation(grid)
     squared = grid_search.clearance_squared(grid.cells == FREE)
 
-    def least(path: np.ndarray) -> float:
-        cells = grid.frame.to_cell(densify(path, 0.025)[1:-1])
+    horizon = baseline.config.planning.keep_clear_horizon
+
+    def least(path: np.ndarray) -> float:  # over the eased first stretch
+        cells = grid.frame.to_cell(densify(split_at(path, horizon)[0], 0.025)[1:-1])
         return float(np.sqrt(squared[cells[:, 0], cells[:, 1]]).min()) * 0.1
 
     gained = 0

@@ -58,6 +58,12 @@ class PlanningConfig(BaseModel):
         description="m beyond the first level's clearance that a path is eased off mapped walls where the free space "
         "allows (navkit.grid_planning.ease_path, as a Nav2 inflation cost keeps paths off walls; 0: the shortest path)",
     )
+    keep_clear_horizon: float = Field(
+        10.0,
+        gt=0,
+        description="m: only the first so many metres of a path are eased (the robot plans again every replan_period "
+        "and drives the near part; easing a whole 100 m path cost 2-5x the search on corridor_150m)",
+    )
     snap_radius: float = Field(1.0, ge=0, description="m; a start or goal in the inflated zone moves to the nearest free cell")
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between replans")
     block_check_distance: float = Field(5.0, gt=0, description="m of the path ahead checked against new obstacles")

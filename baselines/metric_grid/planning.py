@@ -10,7 +10,8 @@ passable cell within ``snap_radius``. Obstacles the map lacks (``obstacles.Unmap
 every mask: with any of them remembered the masks are eroded again at each plan, only as far as the
 fallbacks need (``navkit.grid_planning.plan_path`` asks for them one by one). The path found is eased
 off the mapped walls where the free space allows, up to ``keep_clear`` beyond the first level's
-clearance (``navkit.grid_planning.ease_path``: NavTopo's local planner does the same).
+clearance (``navkit.grid_planning.ease_path``; its first ``keep_clear_horizon`` metres: the robot
+plans again every ``replan_period``).
 
 Raster convention (``occupancy.GridMap``): ``cells[row, col]``, row ↔ y, col ↔ x; points and paths
 are (N, 2) metric in the map frame.
@@ -54,7 +55,7 @@ class GridPlanner:
         # the known free space's clearance, for easing paths: squared cells, capped in 8 bits (1.6 m
         # at 0.1 m cells, more than any easing asks)
         self._clearance = np.minimum(squared["known"], CLEARANCE_CAP).astype(np.uint8)
-        self.prefer = wide + config.keep_clear
+        self.prefer = wide + config.keep_clear if config.keep_clear > 0 else 0.0  # 0: no easing
         self.hold = tight  # points on a narrow passage's medial line stay there
         self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
             key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
@@ -93,6 +94,7 @@ class GridPlanner:
             clearance=self._clearance,
             prefer_m=self.prefer,
             hold_m=self.hold,
+            horizon_m=self.config.keep_clear_horizon,
         )
 
     def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
