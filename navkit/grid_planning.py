@@ -276,17 +276,17 @@ def split_at(points: NDArray[np.float64], arc: float) -> tuple[NDArray[np.float6
     return np.vstack([points[: i + 1], cut[None]]), np.vstack([cut[None], points[i + 1 :]])
 
 
-def densify(points: NDArray[np.float64], step: float) -> NDArray[np.float64]:
-    """The polyline (K, 2) with points added so that consecutive ones are at most ``step`` apart
-    (every leg cut into equal parts; the given points kept)."""
-    points = np.asarray(points, dtype=np.float64)
+def densify(points: ArrayLike, step: float) -> NDArray[np.float64]:
+    """(M, 2) points along a polyline (K, 2), at most ``step`` apart, its vertices included (every
+    leg cut into equal parts)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if len(points) < 2:
         return points.copy()
-    lengths = np.hypot(*np.diff(points, axis=0).T)
-    parts = np.maximum(np.ceil(lengths / step).astype(np.int64), 1)
-    leg = np.repeat(np.arange(len(lengths)), parts)
-    t = (np.arange(parts.sum()) - np.repeat(np.cumsum(parts) - parts, parts)) / np.repeat(parts, parts)
-    return np.vstack([points[leg] + t[:, None] * (points[leg + 1] - points[leg]), points[-1:]])
+    pieces = [points[:1]]
+    for a, b in zip(points[:-1], points[1:], strict=True):
+        count = max(int(math.ceil(float(np.hypot(*(b - a))) / step)), 1)
+        pieces.append(a + np.arange(1, count + 1)[:, None] / count * (b - a))
+    return np.vstack(pieces)
 
 
 def leg_clearances(points: NDArray, clearance_at: ClearanceAt, step: float) -> NDArray[np.float64]:

@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
 from navkit.geometry import arc_lengths, compose, distance_to_polyline, inverse, transform_points
-from navkit.grid_planning import PlannedPath, plan_path
+from navkit.grid_planning import PlannedPath, densify, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import (
@@ -417,7 +417,7 @@ class LocalPlanner:
         # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m),
         # before the polyline first leaves that space beyond there: a route that comes back near
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
-        samples = _densify(np.vstack([start[None, :2], route]), self.config.target_step)
+        samples = densify(np.vstack([start[None, :2], route]), self.config.target_step)
         reach = self.wide + self.config.target_clearance
         free = union.values_at(samples, _passable(union, "known", reach, blocked_xy=blocked_xy), False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
@@ -555,7 +555,7 @@ def narrow_part(
     passable cells by the margin rule), ``extend`` longer at each end (a door's mouth, where the
     way in bends toward its axis); None if there is none, or if it is longer than ``longest`` (a
     narrow corridor, not a door: no straight line through it stands for the path)."""
-    samples = _densify(path, step)  # on the path's segments: their arc lengths are the path's
+    samples = densify(path, step)  # on the path's segments: their arc lengths are the path's
     sample_arcs = arc_lengths(samples)
     narrow = ~union.values_at(samples, mask, True)
     if not narrow.any():
@@ -696,14 +696,6 @@ def _turned(xy: NDArray, yaw: float) -> NDArray[np.float64]:
     c, s = np.cos(yaw), np.sin(yaw)
     x, y = xy[..., 0], xy[..., 1]
     return np.stack([c * x - s * y, s * x + c * y], axis=-1)
-
-
-def _densify(polyline: NDArray, step: float) -> NDArray[np.float64]:
-    samples = [polyline[:1]]
-    for a, b in zip(polyline[:-1], polyline[1:], strict=True):
-        count = max(int(np.ceil(np.hypot(*(b - a)) / step)), 1)
-        samples.append(a + (b - a) * (np.arange(1, count + 1) / count)[:, None])
-    return np.concatenate(samples)
 
 
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:

@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from navkit.grid_planning import densify
 from scenarios.schema import GAP_CAP_M
 from scenarios.world import World
 
@@ -82,19 +83,6 @@ def ridge_clearance(clearance: NDArray, resolution: float, rows: int = 1024) -> 
             np.maximum(best, stripe + rise, out=best)
         lifted[top : min(top + rows, h)] = best[top - lo : top - lo + min(rows, h - top)]
     return lifted
-
-
-def densify(points: NDArray, step: float) -> NDArray[np.float64]:
-    """(M, 2) points along a polyline (K, 2), at most ``step`` apart, its vertices included."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    if len(points) < 2:
-        return points.copy()
-    pieces = [points[:1]]
-    for a, b in zip(points[:-1], points[1:], strict=True):
-        count = max(int(math.ceil(float(np.hypot(*(b - a))) / step)), 1)
-        t = np.arange(1, count + 1)[:, None] / count
-        pieces.append(a + t * (b - a))
-    return np.vstack(pieces)
 
 
 class GapGauge:
