@@ -32,6 +32,7 @@ is (straight, by the locations' map-frame poses).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -52,6 +53,8 @@ from navtopo.planning import (
     GlobalPlanner,
     LocalPlanner,
     Passage,
+    PlannedPath,
+    ScanGrid,
     UnionGrids,
     fit_passage,
     moved_passage,
@@ -99,26 +102,37 @@ class NavigationConfig(BaseModel):
 
 
 def goal_in_graph(
-    graph: TopologicalGraph, goal_xy: NDArray, grid_config: GridConfig, poses: NDArray | None = None
+    graph: TopologicalGraph,
+    goal_xy: NDArray,
+    grid_config: GridConfig,
+    poses: NDArray | None = None,
+    way: Callable[[int, NDArray], float | None] | None = None,
 ) -> tuple[int, NDArray[np.float64]]:
     """A map-frame goal (2,) as ``(v_goal, T_goal)``: among the vertices whose known free area holds
-    the goal, the nearest; if none holds it, the nearest. ``poses`` (V, 3): the vertices' poses in
-    the map frame (``navtopo.graph_poses.relaxed_poses``; default: their odometry hints)."""
+    the goal, the nearest. If none holds it (a room the mapping route passed by without looking in),
+    the vertex with the shortest ``way(vertex, goal in its frame)`` (metres, None: no way; the
+    navigator's: a local plan from the vertex through its union grid, unknown cells inside the room
+    included); with no way found, or no ``way`` given, the nearest. ``poses`` (V, 3): the vertices'
+    poses in the map frame (``navtopo.graph_poses.relaxed_poses``; default: their odometry hints)."""
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
     if poses is None:
         poses = np.array([vertex.pose_hint for vertex in graph.vertices])
-    best, best_free = None, None
-    for v in range(len(graph.vertices)):
-        local = transform_points(inverse(poses[v]), goal_xy[None])[0]
-        distance = float(np.hypot(local[0], local[1]))
-        free = goal_held(graph, v, local, grid_config)
-        if best is None or distance < best[0]:
-            best = (distance, v, local)
-        if free and (best_free is None or distance < best_free[0]):
-            best_free = (distance, v, local)
-    chosen = best_free if best_free is not None else best
-    assert chosen is not None, "an empty graph has no goal vertex"
-    return chosen[1], chosen[2]
+    assert len(poses), "an empty graph has no goal vertex"
+    local = np.array([transform_points(inverse(pose), goal_xy[None])[0] for pose in poses])
+    distance = np.hypot(local[:, 0], local[:, 1])
+    order = [int(v) for v in np.argsort(distance, kind="stable")]
+    held = [v for v in order if goal_held(graph, v, local[v], grid_config)]
+    if held:
+        return held[0], local[held[0]]
+    best: tuple[float, int] | None = None
+    for v in order:  # nearest first; no way is shorter than the straight line
+        if way is None or distance[v] > grid_config.radius or (best is not None and distance[v] >= best[0]):
+            break
+        length = way(v, local[v])
+        if length is not None and (best is None or length < best[0]):
+            best = (length, v)
+    chosen = order[0] if best is None else best[1]
+    return chosen, local[chosen]
 
 
 def goal_held(graph: TopologicalGraph, vertex: int, pose: NDArray, grid_config: GridConfig) -> bool:
@@ -196,6 +210,7 @@ class Navigator:
                 "tentative_blocked",
                 "passages_centred",
                 "passages_blocked",
+                "scan_plans",
             ],
             0,
         )
@@ -227,8 +242,14 @@ class Navigator:
         if self.map_poses is None or len(self.map_poses) != len(self.graph):
             self.map_poses = relaxed_poses(self.graph)
         self.startup.map_poses = self.map_poses
-        vertex, pose = goal_in_graph(self.graph, goal_xy, self.maintainer.grid_config, self.map_poses)
+        vertex, pose = goal_in_graph(self.graph, goal_xy, self.maintainer.grid_config, self.map_poses, self._way_from)
         self.set_goal_in_graph(vertex, pose)
+
+    def _way_from(self, vertex: int, point: NDArray) -> float | None:
+        """Metres of the local plan from ``vertex``'s centre to ``point`` (2,) in its frame, through
+        its union grid (None: none): where a goal no location holds is reached from."""
+        planned = self.local.plan(self.unions.get(vertex), np.zeros(3), point)
+        return None if planned is None else planned.length
 
     def set_goal_in_graph(self, vertex: int, pose: NDArray) -> None:
         """The paper's goal form: ``(v_goal, T_goal)``, T_goal the goal's position in v_goal's frame."""
@@ -416,6 +437,11 @@ class Navigator:
                 target = points[0]
                 planned = self.local.plan(union, pose, target, self._recent_obstacles())
             self.counters["plans"] += 1
+            if planned is None and not tentative and not self.goal.held:
+                # a goal in a room no location saw into: planned in the robot's own scan, which shows
+                # the room through its door once the robot stands before it
+                target = goal_point[0]
+                planned = self._plan_in_scan(obs, pose, target)
             if planned is not None or len(route) == 1 or tentative:
                 break
             # no way to the next vertex in the union grid (a closed door, an obstacle the map lacks)
@@ -442,6 +468,20 @@ class Navigator:
         if not tentative:
             self._describe(self._following(route))
         return True
+
+    def _plan_in_scan(self, obs: Observation, pose: NDArray, goal: NDArray) -> PlannedPath | None:
+        """The local path to ``goal`` (2,, v_cur's frame) in the scan's grid (``ScanGrid.
+        plan_seen_first``), in v_cur's frame."""
+        scan = ScanGrid.of(obs.points, self.maintainer.grid_config, self.local)
+        found = scan.plan_seen_first(
+            transform_points(inverse(pose), goal[None])[0], self.local.config.unknown_detour, self.local.medial
+        )
+        if found is None:
+            return None
+        self.counters["scan_plans"] += 1
+        points = transform_points(pose, found.points)
+        points[0], points[-1] = pose[:2], goal
+        return PlannedPath(points, 0)
 
     def _timed(self, t0: float) -> None:
         # with the union grids built since the last plan (the new-obstacle check asks first)

@@ -512,6 +512,7 @@ class ScanGrid:
     grid: NDArray[np.uint8]
     frame: GridFrame
     masks: list[NDArray[np.bool_]]
+    tight: float  # the second radius of ``masks``: the robot's radius and half a cell
 
     @classmethod
     def of(cls, points: NDArray, grid_config: GridConfig, local: LocalPlanner) -> ScanGrid:
@@ -525,11 +526,27 @@ class ScanGrid:
             for radius in (local.wide, local.tight)
             for space in (grid == FREE, grid != OCCUPIED)
         ]
-        return cls(grid, frame, masks)
+        return cls(grid, frame, masks, local.tight)
 
     def plan(self, end: NDArray, snap_cells: int = 5) -> PlannedPath | None:
         """A path from the robot (the origin) to ``end`` (2,, robot frame) on the first level that has one."""
         return plan_path(self.masks, self.frame, np.zeros(2), end, snap_cells=snap_cells)
+
+    def plan_seen_first(
+        self, end: NDArray, detour: float, medial: float | None = None, snap_cells: int = 5
+    ) -> PlannedPath | None:
+        """As ``plan``, the scan's free space tried first at both radii and, with ``medial``, along
+        a passage's middle at that radius (``LocalPlanner``'s levels: a door the scan shows open
+        before a way round through space it did not see); a way through unseen space refused if
+        longer than ``detour`` times the straight line plus 1 m."""
+        seen = [self.masks[0], self.masks[2]]  # masks: (wide, tight) x (free, not occupied)
+        if medial is not None:
+            squared = grid_search.clearance_squared(self.grid == FREE)
+            seen.append(grid_search.passable(squared, self.tight, self.frame.resolution, medial))
+        found = plan_path([*seen, self.masks[1], self.masks[3]], self.frame, np.zeros(2), end, snap_cells=snap_cells)
+        if found is None or (found.level >= len(seen) and found.length > detour * float(np.hypot(*end[:2])) + 1.0):
+            return None
+        return found
 
 
 # ---------------------------------------------------------------------------------------------

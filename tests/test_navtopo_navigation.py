@@ -4,13 +4,15 @@ without a pose and reach goals in other locations."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
 from navkit import geometry as se2
 from navkit.raster import FREE, OCCUPIED, UNKNOWN
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
+from navtopo.local_grid import CroppedGrid, GridConfig, grid_frame, grid_from_points
 from navtopo.navigation import goal_in_graph
 from navtopo.planning import GlobalPlanner, build_union_grid, path_positions
 from runners.mapping import MappingSystem, run_mapping
@@ -144,6 +146,48 @@ def test_a_map_frame_goal_goes_to_the_location_whose_free_area_holds_it():
     assert np.allclose(se2.transform_points([3.0, 0, np.pi], pose[None])[0], [1.6, 0.0])
     vertex, pose = goal_in_graph(graph, np.array([0.5, 0.2]), GRID)
     assert vertex == 0 and np.allclose(pose, [0.5, 0.2])
+
+
+def _painted(pose: list[float], paint: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+    """A location grid at ``pose`` (yaw 0) whose cells take ``paint(x, y)`` of their centres' map-frame
+    coordinates (arrays of cell values)."""
+    rows, cols = np.mgrid[0 : GRID.size, 0 : GRID.size]
+    centres = grid_frame(GRID).to_world(np.stack([rows, cols], axis=-1))
+    return paint(centres[..., 0] + pose[0], centres[..., 1] + pose[1]).astype(np.uint8)
+
+
+def test_a_goal_no_location_holds_goes_to_the_one_it_can_be_reached_from():
+    """A room (x 1-3, y -1..1) the mapping route passed by: no location saw into it. Location 0
+    (1.9 m from the goal) sees its west wall whole; location 1 (3 m away) sees its north wall and
+    the door in it, and the corridor west of it. The goal goes to location 1, whose local plan goes in through the door; told
+    no way (none given), to the nearest."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    def room(x, y, known):
+        cells = np.where(known, FREE, UNKNOWN)
+        inside_room = (x > 1.0) & (x < 3.0) & (y > -1.0) & (y < 1.0)
+        cells = np.where(inside_room, UNKNOWN, cells)
+        west = (np.abs(x - 1.0) < 0.05) & (np.abs(y) < 8.0)
+        north = (np.abs(y - 1.0) < 0.05) & (x > 1.0) & (x < 3.0) & ~((x > 1.6) & (x < 2.6))  # a 1 m door
+        return np.where((west & (x < 1.5)) | north, OCCUPIED, cells)
+
+    poses = [[-0.1, 0.0, 0.0], [2.1, 3.0, 0.0]]
+    grid0 = _painted(poses[0], lambda x, y: room(x, y, x < 1.0))
+    grid1 = _painted(poses[1], lambda x, y: room(x, y, (y > 1.0) | (x < 1.0)))  # and the corridor west
+    graph = _graph(poses, [], [grid0, grid1])
+    goal = np.array([1.8, 0.0])
+    config = PlanningConfig()
+    unions = UnionGrids(graph, GRID, config)
+    local = LocalPlanner(unions, 0.3, config)
+    assert local.plan(unions.get(0), np.zeros(3), goal - poses[0][:2]) is None  # round the wall: refused
+
+    def way(vertex, point):
+        planned = local.plan(unions.get(vertex), np.zeros(3), point)
+        return None if planned is None else planned.length
+
+    vertex, pose = goal_in_graph(graph, goal, GRID, way=way)
+    assert vertex == 1 and np.allclose(pose, goal - poses[1][:2])
+    assert goal_in_graph(graph, goal, GRID)[0] == 0
 
 
 @pytest.fixture(scope="module")
