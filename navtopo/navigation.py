@@ -40,8 +40,9 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.follower import PathFollower, ProgressCheck
-from navkit.geometry import between, compose, distance_to_polyline, inverse, transform_points
+from navkit.geometry import between, compose, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
+from navkit.passages import PassageCheck, PassageConfig, returns_near
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
 from navkit.types import Command, FailureStage, NavStatus, Observation, Status
@@ -52,15 +53,10 @@ from navtopo.mapping import GraphMaintainer
 from navtopo.planning import (
     GlobalPlanner,
     LocalPlanner,
-    Passage,
     PlannedPath,
     ScanGrid,
     UnionGrids,
-    fit_passage,
-    moved_passage,
-    narrow_part,
     path_positions,
-    shifted_path,
 )
 from navtopo.scan_matching import prepare
 from navtopo.startup import Explorer, Hypothesis, Localization, Startup
@@ -68,9 +64,6 @@ from navtopo.startup import Explorer, Hypothesis, Localization, Startup
 #: metres of odometry alone (every update "lost": outside every location's reach, none verified)
 #: after which the navigator says it is lost (stage ``localization``); a diagnosis, no behaviour
 LOST_AFTER_M = 2.0
-#: metres of the path before and after a narrow passage checked with it against the scan (the way in
-#: and out: a line through a door that turns at its mouth comes near the jambs' corners)
-PASSAGE_LEAD = 0.5
 
 
 class NavigationConfig(BaseModel):
@@ -187,8 +180,7 @@ class Navigator:
     _last_odom: NDArray[np.float64] | None = None
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
-    _passage: Passage | None = None  # the narrow part of the path being followed, to check against the scan
-    _passage_checked: float = -np.inf  # when it was last
+    passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
 
     def reset(self) -> None:
         self.status = NavStatus()
@@ -231,8 +223,7 @@ class Navigator:
         self._tentative = None
         self._odometer, self._last_odom, self._lost_since = 0.0, None, None
         self._removed = {}
-        self._passage = None
-        self._passage_checked = -np.inf
+        self._passages().clear()
 
     # -- the goal server ----------------------------------------------------------------------------
 
@@ -363,7 +354,7 @@ class Navigator:
         if self._needs_plan(obs, vertex, pose):
             if not self._plan(obs, vertex, pose, tentative):
                 return Command()
-        if self._passage is not None and not self._check_passage(obs, pose):
+        if not self._check_passage(obs, pose):
             return Command()  # the passage is shut to the robot: plan again at the next tick
         if not tentative and self._stuck(obs, pose):
             return Command()
@@ -464,7 +455,7 @@ class Navigator:
         self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
         self.follower.set_path(planned.points)
         kind, radius, medial = self.local.levels[planned.level]
-        self._passage = None if medial is None else narrow_part(union.mask(kind, radius), union, self.follower.path)
+        self._passages().set_path(self.follower.path, None if medial is None else union.passable_at(kind, radius))
         if not tentative:
             self._describe(self._following(route))
         return True
@@ -494,57 +485,44 @@ class Navigator:
         """The local path has been driven to its end short of the goal: the maintainer must look now."""
         return bool(self.follower.has_path and self.follower.reached and not self._target_is_goal)
 
+    def _passages(self) -> PassageCheck:
+        if self.passages is None:
+            c = self.config
+            config = PassageConfig(
+                check_range=c.passage_check_range,
+                margin=c.passage_margin,
+                block_range=c.passage_block_range,
+                period=c.passage_check_period,
+                max_shift=c.passage_max_shift,
+            )
+            self.passages = PassageCheck(config, self.robot_radius)
+        return self.passages
+
     def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
-        """A narrow passage of the path (``planning.Passage``) within ``passage_check_range`` ahead,
-        against the scan's obstacle returns (exact, where the map has them to a cell; every
-        ``passage_check_period``): its ends move to where the scan leaves the robot most room
-        (``planning.fit_passage``) or, if that is less than ``passage_margin`` a side with the passage
-        within ``passage_block_range``, its returns there become obstacles and the path is dropped
-        (False: plan again). True: follow on."""
-        passage, follower, config = self._passage, self.follower, self.config
-        assert passage is not None
-        progress = follower.progress
-        if progress > passage.exit_arc or config.passage_check_range <= 0:
-            self._passage = None
+        """The narrow passage of the path against the scan's returns (``navkit.passages``): moved to
+        their middle, or shut (its returns become obstacles, the path is dropped; False: plan again).
+        True: follow on."""
+        check, follower = self._passages(), self.follower
+        if not check.due(obs.stamp, follower.progress):
             return True
-        if (
-            passage.entry_arc - progress > config.passage_check_range
-            or obs.stamp - self._passage_checked < config.passage_check_period
-        ):
-            return True
-        self._passage_checked = obs.stamp
-        returns = self._returns_near(obs, pose, np.vstack([passage.entry, passage.exit]), PASSAGE_LEAD + config.passage_max_shift)
-        if not len(returns):
-            return True
-        path = follower.path
-        # the way ahead, not where the robot is: from a radius on (a robot beside a jamb in the
-        # doorway is past the choice)
-        ahead = progress + self.robot_radius
-        moves, clearance = fit_passage(path, passage, returns, PASSAGE_LEAD, config.passage_max_shift, from_arc=ahead)
-        need = self.robot_radius + config.passage_margin
-        if clearance < need and 0 < passage.entry_arc - progress <= config.passage_block_range:
-            # the robot does not fit where the map showed a passage (narrower than the map's cells
-            # showed it, or the pose off by more than a side's room): shut it
-            moved = shifted_path(path, passage, moves)
-            self.obstacles.mark(returns[distance_to_polyline(returns, moved) < need])
+        assert check.passage is not None
+        returns = self._returns_near(obs, pose, np.vstack([check.passage.entry, check.passage.exit]), check.reach())
+        verdict = check.check(obs.stamp, follower.path, follower.progress, returns, pose)
+        if verdict.shut is not None:
+            self.obstacles.mark(verdict.shut)
             self.counters["passages_blocked"] += 1
-            self._passage = None
             self._path_vertex = None
-            self.follower.clear()
+            follower.clear()
             return False
-        if clearance >= need and float(np.abs(moves).max()) >= 0.01:
-            moved, self._passage = moved_passage(path, passage, moves, progress, np.asarray(pose, dtype=np.float64)[:2])
-            follower.set_path(moved)
+        if verdict.path is not None:
+            follower.set_path(verdict.path)
             self.counters["passages_centred"] += 1
         return True
 
     def _returns_near(self, obs: Observation, pose: NDArray, segment: NDArray, reach: float) -> NDArray[np.float64]:
-        """The scan's obstacle returns (v_cur's frame, one a centimetre cell) within ``reach`` plus the
-        robot radius of ``segment`` (2, 2)."""
+        """The scan's obstacle returns (v_cur's frame) within ``reach`` of ``segment`` (2, 2)."""
         points = np.asarray(obstacle_points(obs.points, self.maintainer.grid_config)[:, :2], dtype=np.float64)
-        returns = transform_points(pose, points)
-        returns = returns[distance_to_polyline(returns, segment) <= reach + self.robot_radius]
-        return np.unique(np.round(returns / 0.01), axis=0) * 0.01
+        return returns_near(transform_points(pose, points), segment, reach)
 
     # -- new obstacles and progress ---------------------------------------------------------------------
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -35,7 +36,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
-from navkit.geometry import arc_lengths, compose, distance_to_polyline, inverse, transform_points
+from navkit.geometry import compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, densify, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
@@ -284,6 +285,11 @@ class UnionGrid:
         out = np.full(len(cells), outside, dtype=array.dtype)
         out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
         return out
+
+    def passable_at(self, kind: str, radius: float) -> Callable[[NDArray], NDArray[np.bool_]]:
+        """Points (N, 2) of the location's frame -> on ``mask(kind, radius)`` (True off the grid)."""
+        mask = self.mask(kind, radius)
+        return lambda xy: self.values_at(xy, mask, True)
 
     @property
     def nbytes(self) -> int:
@@ -547,145 +553,6 @@ class ScanGrid:
         if found is None or (found.level >= len(seen) and found.length > detour * float(np.hypot(*end[:2])) + 1.0):
             return None
         return found
-
-
-# ---------------------------------------------------------------------------------------------
-# a narrow passage, checked against the scan
-
-
-@dataclass(frozen=True)
-class Passage:
-    """The narrow part of a local path found on a medial level (v_cur's frame): from the first to
-    the last of its points (every ``step`` along it) nearer the walls' cells than the margin rule
-    allows; ``entry_arc`` and ``exit_arc`` are their arc lengths along the path."""
-
-    entry: NDArray[np.float64]  # (2,)
-    exit: NDArray[np.float64]  # (2,)
-    entry_arc: float
-    exit_arc: float
-
-
-def narrow_part(
-    mask: NDArray[np.bool_], union: UnionGrid, path: NDArray, extend: float = 0.25, longest: float = 1.5, step: float = 0.05
-) -> Passage | None:
-    """The first stretch of ``path`` (K, 2, v_cur's frame) whose points lie off ``mask`` (the level's
-    passable cells by the margin rule), ``extend`` longer at each end (a door's mouth, where the
-    way in bends toward its axis); None if there is none, or if it is longer than ``longest`` (a
-    narrow corridor, not a door: no straight line through it stands for the path)."""
-    samples = densify(path, step)  # on the path's segments: their arc lengths are the path's
-    sample_arcs = arc_lengths(samples)
-    narrow = ~union.values_at(samples, mask, True)
-    if not narrow.any():
-        return None
-    first = int(np.argmax(narrow))
-    wide_after = np.flatnonzero(~narrow[first:])
-    last = first + (int(wide_after[0]) - 1 if len(wide_after) else len(narrow) - 1 - first)
-    entry_arc = max(float(sample_arcs[first]) - extend, 0.0)
-    exit_arc = min(float(sample_arcs[last]) + extend, float(sample_arcs[-1]))
-    if exit_arc - entry_arc > longest:
-        return None
-    arcs = arc_lengths(path)
-    return Passage(_point_at(path, arcs, entry_arc), _point_at(path, arcs, exit_arc), entry_arc, exit_arc)
-
-
-def fit_passage(
-    path: NDArray, passage: Passage, returns: NDArray, lead: float = 0.5, max_shift: float = 0.3, from_arc: float = 0.0
-) -> tuple[NDArray[np.float64], float]:
-    """Where the scan leaves the robot most room through the passage: ``(moves (2, 2), clearance)``,
-    how far to move the passage's entry and its exit (v_cur's frame, each across the passage's
-    direction by at most ``max_shift``: so the line through it can turn to the door's axis as well
-    as move to its middle; the least moves among the best) and the least distance from ``returns``
-    (N, 2: the scan's obstacle points in v_cur's frame) to the path so moved, from ``lead`` before
-    the passage (not before ``from_arc``: where the robot is, plus a little, is no choice) to
-    ``lead`` after it. The walls a map's cells place within a cell of where they are, and the
-    robot's pose in its location, each move the path off a door's middle by a few centimetres,
-    where a door at the robot's width leaves it ten a side."""
-    arcs = arc_lengths(path)
-    direction = passage.exit - passage.entry
-    if float(np.hypot(*direction)) < 1e-6:
-        direction = _point_at(path, arcs, passage.exit_arc + 0.1) - _point_at(path, arcs, passage.entry_arc - 0.1)
-    normal = np.array([-direction[1], direction[0]]) / max(float(np.hypot(*direction)), 1e-9)
-    start, end = max(passage.entry_arc - lead, from_arc), passage.exit_arc + lead
-    inside = start >= passage.entry_arc  # in the passage already: the way on starts where the robot is
-    entry = _point_at(path, arcs, start) if inside else passage.entry
-    head = (
-        np.zeros((0, 2))
-        if inside
-        else np.vstack([_point_at(path, arcs, start), path[(arcs > start) & (arcs < passage.entry_arc)]])
-    )
-    tail = np.vstack([path[(arcs > passage.exit_arc) & (arcs < end)], _point_at(path, arcs, end)])
-    if not len(returns):
-        return np.zeros((2, 2)), float("inf")
-    fixed = float(distance_to_polyline(returns, tail).min())
-    if len(head) > 1:
-        fixed = min(fixed, float(distance_to_polyline(returns, head).min()))
-
-    def clearances(entry_shifts: NDArray, exit_shifts: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-        d_in, d_out = (grid.ravel() for grid in np.meshgrid(entry_shifts, exit_shifts, indexing="ij"))
-        moved_in = entry[None] + d_in[:, None] * normal
-        moved_out = passage.exit[None] + d_out[:, None] * normal
-        nearest = _segment_distances(moved_in, moved_out, returns).min(axis=1)
-        nearest = np.minimum(nearest, _segment_distances(moved_out, np.repeat(tail[:1], len(d_out), 0), returns).min(axis=1))
-        if len(head):
-            nearest = np.minimum(nearest, _segment_distances(np.repeat(head[-1:], len(d_in), 0), moved_in, returns).min(axis=1))
-        return np.minimum(nearest, fixed), d_in, d_out
-
-    def best_of(entry_shifts: NDArray, exit_shifts: NDArray) -> tuple[float, float, float]:
-        values, d_in, d_out = clearances(entry_shifts, exit_shifts)
-        k = int(np.argmax(values - 1e-4 * (np.abs(d_in) + np.abs(d_out))))  # the least moves among the best
-        return float(values[k]), float(d_in[k]), float(d_out[k])
-
-    # coarse, then fine round the best: 13 x 13 and 9 x 9 moves, not 61 x 61
-    coarse = np.linspace(-max_shift, max_shift, 13)
-    _, d_in, d_out = best_of(np.zeros(1) if inside else coarse, coarse)
-    step = max_shift / 6
-    fine = np.linspace(-step, step, 9)
-    in_shifts = np.zeros(1) if inside else np.clip(d_in + fine, -max_shift, max_shift)
-    clearance, d_in, d_out = best_of(in_shifts, np.clip(d_out + fine, -max_shift, max_shift))
-    return np.array([d_in * normal, d_out * normal]), clearance
-
-
-def shifted_path(path: NDArray, passage: Passage, moves: NDArray) -> NDArray[np.float64]:
-    """``path`` (K, 2) with its passage's entry and exit moved by ``moves`` (2, 2) and the points
-    between them left out."""
-    arcs = arc_lengths(path)
-    ends = np.vstack([passage.entry + moves[0], passage.exit + moves[1]])
-    return np.vstack([path[arcs < passage.entry_arc], ends, path[arcs > passage.exit_arc]])
-
-
-def moved_passage(
-    path: NDArray, passage: Passage, moves: NDArray, progress: float, position: NDArray
-) -> tuple[NDArray[np.float64], Passage]:
-    """The path to follow from ``position`` (2,) on, the robot ``progress`` metres along ``path``
-    (K, 2), with the passage's ends moved by ``moves`` (2, 2) (``shifted_path``), and the moved
-    passage along it (its entry at the robot if the robot is in it already)."""
-    arcs = arc_lengths(path)
-    before, after = arcs < passage.entry_arc, arcs > passage.exit_arc
-    ends = np.vstack([passage.entry + moves[0], passage.exit + moves[1]])
-    points = np.vstack([path[before], ends, path[after]])
-    along = np.concatenate([arcs[before], [passage.entry_arc, passage.exit_arc], arcs[after]])
-    keep = along > progress
-    moved = np.vstack([np.asarray(position, dtype=np.float64)[None, :2], points[keep]])
-    moved_arcs = arc_lengths(moved)
-    exit_index = int(np.count_nonzero(keep[: int(before.sum()) + 2]))  # moved[0] is the robot
-    entry_index = exit_index - 1 if keep[int(before.sum())] else 0
-    return moved, Passage(
-        moved[entry_index].copy(), moved[exit_index].copy(), float(moved_arcs[entry_index]), float(moved_arcs[exit_index])
-    )
-
-
-def _segment_distances(starts: NDArray, ends: NDArray, points: NDArray) -> NDArray[np.float64]:
-    """(C, N) the distance from each of ``points`` (N, 2) to each segment ``starts`` (C, 2) -> ``ends`` (C, 2)."""
-    vectors = ends - starts
-    lengths2 = np.maximum((vectors**2).sum(axis=1), 1e-12)
-    rel = points[None, :, :] - starts[:, None, :]
-    along = np.clip((rel * vectors[:, None, :]).sum(axis=2) / lengths2[:, None], 0.0, 1.0)
-    return np.hypot(*(rel - along[..., None] * vectors[:, None, :]).transpose(2, 0, 1))
-
-
-def _point_at(path: NDArray, arcs: NDArray, arc: float) -> NDArray[np.float64]:
-    """The point of ``path`` (K, 2) at arc length ``arc`` (clamped)."""
-    return np.array([np.interp(arc, arcs, path[:, 0]), np.interp(arc, arcs, path[:, 1])])
 
 
 def _passable(

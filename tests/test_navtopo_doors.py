@@ -19,21 +19,17 @@ from shapely.ops import unary_union
 
 from navkit import geometry as se2
 from navkit.grid_search import medial_axis
+from navkit.passages import Passage, fit_passage, moved_passage, narrow_part, shifted_path
 from navkit.raster import FREE, OCCUPIED, GridFrame
 from navkit.scan import obstacle_points
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
 from navtopo.planning import (
     LocalPlanner,
-    Passage,
     PlanningConfig,
     UnionGrid,
     UnionGrids,
     build_union_grid,
-    fit_passage,
-    moved_passage,
-    narrow_part,
-    shifted_path,
 )
 
 try:
@@ -138,7 +134,7 @@ def test_a_door_at_the_robots_width_is_passed_through_its_middle(width):
         planner, union, planned = plan_across(graph, PlanningConfig())
         assert planned is not None, (width, heading)
         kind, radius, medial = planner.levels[planned.level]
-        passage = narrow_part(union.mask(kind, radius), union, planned.points) if medial is not None else None
+        passage = narrow_part(planned.points, union.passable_at(kind, radius)) if medial is not None else None
         if passage is None:  # found by the margin rule, in the turned grid
             assert true_clearance(planned.points, poses[0], walls) >= RADIUS + 0.03, (width, heading)
             continue
@@ -167,7 +163,7 @@ def test_a_gap_the_robot_does_not_fit_is_never_driven_through(width):
             continue
         kind, radius, medial = planner.levels[planned.level]
         assert medial is not None  # never by the margin rule
-        passage = narrow_part(union.mask(kind, radius), union, planned.points)
+        passage = narrow_part(planned.points, union.passable_at(kind, radius))
         assert passage is not None
         returns = scan_returns(world, poses[0], passage)
         moves, clearance = fit_passage(planned.points, passage, returns, from_arc=RADIUS)

@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.follower import FollowerConfig
 from navkit.odometry import OdometryConfig
+from navkit.passages import PassageConfig
 from navkit.scan import CEILING_HEIGHT, FLOOR_HEIGHT
 
 from .localization import RelocalizationConfig, ScanToMapConfig
@@ -65,6 +66,13 @@ class PlanningConfig(BaseModel):
         "and drives the near part; easing a whole 100 m path cost 2-5x the search on corridor_150m)",
     )
     snap_radius: float = Field(1.0, ge=0, description="m; a start or goal in the inflated zone moves to the nearest free cell")
+    passages: PassageConfig = Field(
+        default_factory=PassageConfig,
+        description="where a path passes with less than the first level's clearance and a cell more (a door near "
+        "the robot's width, as the map draws it) it is checked against the scan as the robot nears it: moved to the returns' middle, or shut if the robot does not fit "
+        "(navkit.passages, as NavTopo's; check_range 0: never). The map's cells and the pose on the map are each a "
+        "few centimetres off, where such a door leaves ten a side",
+    )
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between replans")
     block_check_distance: float = Field(5.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block")

@@ -55,11 +55,23 @@ class GridPlanner:
         # the known free space's clearance, for easing paths: squared cells, capped in 8 bits (1.6 m
         # at 0.1 m cells, more than any easing asks)
         self._clearance = np.minimum(squared["known"], CLEARANCE_CAP).astype(np.uint8)
+        self.wide = wide
         self.prefer = wide + config.keep_clear if config.keep_clear > 0 else 0.0  # 0: no easing
         self.hold = tight  # points on a narrow passage's medial line stay there
         self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
             key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
         }
+
+    def roomy_at(self, points: NDArray) -> NDArray[np.bool_]:
+        """Points (N, 2, map frame) -> the known free space there leaves the first level's clearance
+        and a cell more (True off the map): where a path passes narrower (a door the map draws a
+        cell wider than it is still counts), its passage is checked against the scan."""
+        cells = self.grid_map.frame.to_cell(np.asarray(points, dtype=np.float64)[:, :2])
+        on_map = inside(cells, self._clearance.shape)
+        need = (self.wide / self.grid_map.resolution + 1.0) ** 2
+        out = np.ones(len(cells), bool)
+        out[on_map] = self._clearance[cells[on_map, 0], cells[on_map, 1]] >= need
+        return out
 
     @property
     def nbytes(self) -> int:

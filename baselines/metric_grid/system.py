@@ -50,7 +50,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
 from navkit.follower import PathFollower, ProgressCheck
+from navkit.geometry import transform_points
 from navkit.odometry import LidarOdometry, OdometryConfig
+from navkit.passages import PassageCheck, returns_near
 from navkit.scan import obstacle_points
 from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
 
@@ -74,7 +76,15 @@ __all__ = [
 ]
 
 #: the planner's counters, reported before the tracker's (``tracking.COUNTERS``)
-PLAN_COUNTERS = ("plans", "replans_blocked", "plans_failed", "fallback_plans", "recoveries")
+PLAN_COUNTERS = (
+    "plans",
+    "replans_blocked",
+    "plans_failed",
+    "fallback_plans",
+    "recoveries",
+    "passages_centred",
+    "passages_blocked",
+)
 
 
 class MetricGrid:
@@ -98,6 +108,7 @@ class MetricGrid:
         self.planner: GridPlanner | None = None
         self.obstacles = UnmappedObstacles(cfg.planning)
         self.follower = PathFollower(cfg.follower)
+        self.passages = PassageCheck(cfg.planning.passages, self.robot_radius)
         self.progress = ProgressCheck(cfg.planning.progress_distance, cfg.planning.progress_time)
         self._recoveries = 0  # this goal's
         self.planning_ms: list[float] = []
@@ -234,6 +245,7 @@ class MetricGrid:
         self.status = NavStatus()
         self.planning_ms = []
         self.follower.clear()
+        self.passages.clear()
         self._last_plan_stamp = -np.inf
         self.obstacles.clear()
         self.progress.reset()
@@ -270,6 +282,8 @@ class MetricGrid:
             path = self._timed_plan(pose[:2], self._goal)
             if path is not None:
                 self.follower.set_path(path)
+                assert self.planner is not None
+                self.passages.set_path(self.follower.path, self.planner.roomy_at)
                 self._describe(self._following(pose, path))
             elif not self.follower.has_path:
                 if len(self.obstacles.points) and self._recover():
@@ -278,6 +292,8 @@ class MetricGrid:
                 detail = self.planner.why_no_path(pose[:2], self._goal, self.obstacles.points)
                 self.status = NavStatus(Status.FAILED, "no_path", FailureStage.GLOBAL_PLAN, detail)
                 return Command()
+        if not self._check_passage(obs, pose):
+            return Command()  # the passage is shut to the robot: plan again at the next tick
         command = self.follower.command(pose)
         if self.follower.reached:
             off = float(np.hypot(*(pose[:2] - self._goal)))
@@ -285,6 +301,29 @@ class MetricGrid:
             self.status = NavStatus(Status.REACHED, detail=detail)
             return Command()
         return command
+
+    def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
+        """The narrow passage of the path against the scan's returns (``navkit.passages``): moved to
+        their middle, or shut (its returns become remembered obstacles, the path is dropped; False:
+        plan again). True: follow on."""
+        check, follower = self.passages, self.follower
+        if not check.due(obs.stamp, follower.progress):
+            return True
+        assert check.passage is not None
+        points = np.asarray(obstacle_points(obs.points, self.band)[:, :2], dtype=np.float64)
+        segment = np.vstack([check.passage.entry, check.passage.exit])
+        returns = returns_near(transform_points(pose, points), segment, check.reach())
+        verdict = check.check(obs.stamp, follower.path, follower.progress, returns, pose)
+        if verdict.shut is not None:
+            self.obstacles.memory.mark(verdict.shut)
+            self.plan_counters["passages_blocked"] += 1
+            follower.clear()
+            self._last_plan_stamp = -np.inf
+            return False
+        if verdict.path is not None:
+            follower.set_path(verdict.path)
+            self.plan_counters["passages_centred"] += 1
+        return True
 
     def _recover(self) -> bool:
         """One recovery, if this goal has one left (Nav2's behaviour tree after a failed plan or the
