@@ -69,9 +69,10 @@ class PlanningConfig(BaseModel):
     passages: PassageConfig = Field(
         default_factory=PassageConfig,
         description="where a path passes with less than the first level's clearance and a cell more (a door near "
-        "the robot's width, as the map draws it) it is checked against the scan as the robot nears it: moved to the returns' middle, or shut if the robot does not fit "
-        "(navkit.passages, as NavTopo's; check_range 0: never). The map's cells and the pose on the map are each a "
-        "few centimetres off, where such a door leaves ten a side",
+        "the robot's width, as the map draws it) it is checked against the scan as the robot nears it: moved to "
+        "the returns' middle, or shut if the robot does not fit (navkit.passages, as NavTopo's; check_range 0: "
+        "never). The map's cells and the pose on the map are each a few centimetres off, where such a door leaves "
+        "ten a side",
     )
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between replans")
     block_check_distance: float = Field(5.0, gt=0, description="m of the path ahead checked against new obstacles")
