@@ -1,0 +1,81 @@
+"""The passage check both systems run (``navkit.passages``) against a door drawn off where it is:
+the path is moved to the middle the scan shows, or the passage is shut when the robot does not fit;
+and the metric baseline finds the narrow part of its path where its map leaves less than the first
+level's clearance and a cell, a door the map draws a cell too wide included."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines.metric_grid.config import PlanningConfig
+from baselines.metric_grid.occupancy import GridMap
+from baselines.metric_grid.planning import GridPlanner
+from navkit.geometry import distance_to_polyline
+from navkit.passages import PassageCheck, PassageConfig
+from navkit.raster import FREE, OCCUPIED
+
+RADIUS = 0.3
+
+
+def door_returns(centre_x: float, width: float, y: float = 0.0) -> np.ndarray:
+    """Returns along a wall at ``y`` (x in [-3, 3]) every 2 cm, with a door of ``width`` centred at ``centre_x``."""
+    x = np.arange(-3.0, 3.0, 0.02)
+    x = x[np.abs(x - centre_x) >= width / 2]
+    return np.stack([x, np.full_like(x, y)], axis=1)
+
+
+def straight_path() -> np.ndarray:
+    """From 2 m below the wall straight up through x = 0 to 2 m above it."""
+    return np.array([[0.0, -2.0], [0.0, 2.0]])
+
+
+def roomy_off_door(xy: np.ndarray) -> np.ndarray:
+    """The map's verdict: narrow within 0.3 m of the wall (the door), roomy elsewhere."""
+    return np.abs(xy[:, 1]) > 0.3
+
+
+@pytest.mark.parametrize("offset", [-0.15, 0.1])
+def test_a_door_off_the_path_moves_the_path_to_its_middle(offset):
+    # a 0.85 m door (0.125 m a side for the robot) whose middle the scan shows `offset` off the path
+    check = PassageCheck(PassageConfig(), RADIUS)
+    path = straight_path()
+    check.set_path(path, roomy_off_door)
+    assert check.passage is not None and check.passage.entry_arc < 2.0 < check.passage.exit_arc
+    assert check.due(stamp=0.0, progress=0.5)
+    verdict = check.check(0.0, path, 0.5, door_returns(offset, 0.85), np.array([0.0, -1.5]))
+    assert verdict.shut is None and verdict.path is not None
+    # the moved path clears both jambs by the radius and the margin
+    assert distance_to_polyline(door_returns(offset, 0.85), verdict.path).min() >= RADIUS + PassageConfig().margin - 1e-6
+    assert not check.due(stamp=0.1, progress=0.6)  # not again before the period
+
+
+def test_a_door_narrower_than_the_robot_is_shut_near_it():
+    check = PassageCheck(PassageConfig(), RADIUS)
+    path = straight_path()
+    check.set_path(path, roomy_off_door)
+    returns = door_returns(0.0, 0.55)
+    verdict = check.check(0.0, path, 1.0, returns, np.array([0.0, -1.0]))
+    assert verdict.path is None and verdict.shut is not None and len(verdict.shut)
+    assert np.abs(verdict.shut[:, 0]).max() < 1.0  # the jambs' returns, not the whole wall
+
+
+def test_a_path_with_room_to_spare_has_no_passage():
+    check = PassageCheck(PassageConfig(), RADIUS)
+    check.set_path(straight_path(), lambda xy: np.ones(len(xy), bool))
+    assert check.passage is None and not check.due(0.0, 0.0)
+
+
+@pytest.mark.parametrize("door_m, narrow", [(0.95, True), (1.6, False)])
+def test_the_baseline_checks_a_door_its_map_draws_near_the_margin(door_m, narrow):
+    # a wall across a 6 x 6 m map at y = 0 with a door at x = 0; 0.1 m cells
+    cells = np.full((60, 60), FREE, np.uint8)
+    cells[30, :] = OCCUPIED
+    half = int(round(door_m / 0.1 / 2))
+    cells[30, 30 - half : 30 + half] = FREE
+    planner = GridPlanner(GridMap(cells, np.array([-3.0, -3.0]), 0.1), RADIUS, PlanningConfig())
+    planned = planner.plan([0.05, -2.0], [0.05, 2.0], np.zeros((0, 2)))
+    assert planned is not None
+    check = PassageCheck(PassageConfig(), RADIUS)
+    check.set_path(planned.points, planner.roomy_at)
+    assert (check.passage is not None) == narrow
