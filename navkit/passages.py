@@ -118,6 +118,11 @@ class PassageCheck:
             self.passage = None
             return Verdict(shut=returns[distance_to_polyline(returns, moved) < need])
         if clearance >= need and float(np.abs(moves).max()) >= 0.01:
+            if passage.entry_arc <= ahead < passage.exit_arc:
+                # in the passage already: the fit kept the way on to ``ahead`` and moved the exit alone,
+                # so the path goes there first (straight from the robot to the moved exit would cut
+                # the corner of a passage that bends, which the fit did not check)
+                passage = Passage(_point_at(path, arc_lengths(path), ahead), passage.exit, ahead, passage.exit_arc)
             moved, self.passage = moved_passage(path, passage, moves, progress, np.asarray(position, dtype=np.float64)[:2])
             return Verdict(path=moved)
         return Verdict()
