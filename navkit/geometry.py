@@ -96,6 +96,15 @@ def arc_lengths(polyline: ArrayLike) -> NDArray[np.float64]:
     return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
 
 
+def point_at_arc(polyline: NDArray, arcs: NDArray, arc: float) -> NDArray[np.float64]:
+    """The point of a polyline (K, 2+) at arc length ``arc`` (clamped to its ends); ``arcs`` its
+    ``arc_lengths``."""
+    i = int(np.clip(np.searchsorted(arcs, arc), 1, len(arcs) - 1))
+    span = arcs[i] - arcs[i - 1]
+    t = 0.0 if span <= 0 else float(np.clip((arc - arcs[i - 1]) / span, 0.0, 1.0))
+    return np.asarray(polyline[i - 1] + t * (polyline[i] - polyline[i - 1]), dtype=np.float64)
+
+
 def distance_to_polyline(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.float64]:
     """(M,) distance of each point (M, 2) to the polyline (K, 2), K >= 1 (a single point: to it)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)

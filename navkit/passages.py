@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navkit.geometry import arc_lengths, distance_to_polyline
+from navkit.geometry import arc_lengths, distance_to_polyline, point_at_arc
 from navkit.grid_planning import densify
 
 #: metres of the path before and after a narrow passage checked with it against the scan (the way in
@@ -122,7 +122,7 @@ class PassageCheck:
                 # in the passage already: the fit kept the way on to ``ahead`` and moved the exit alone,
                 # so the path goes there first (straight from the robot to the moved exit would cut
                 # the corner of a passage that bends, which the fit did not check)
-                passage = Passage(_point_at(path, arc_lengths(path), ahead), passage.exit, ahead, passage.exit_arc)
+                passage = Passage(point_at_arc(path, arc_lengths(path), ahead), passage.exit, ahead, passage.exit_arc)
             moved, self.passage = moved_passage(path, passage, moves, progress, np.asarray(position, dtype=np.float64)[:2])
             return Verdict(path=moved)
         return Verdict()
@@ -165,7 +165,7 @@ def narrow_part(
     if exit_arc - entry_arc > longest:
         return None
     arcs = arc_lengths(path)
-    return Passage(_point_at(path, arcs, entry_arc), _point_at(path, arcs, exit_arc), entry_arc, exit_arc)
+    return Passage(point_at_arc(path, arcs, entry_arc), point_at_arc(path, arcs, exit_arc), entry_arc, exit_arc)
 
 
 def fit_passage(
@@ -183,17 +183,17 @@ def fit_passage(
     arcs = arc_lengths(path)
     direction = passage.exit - passage.entry
     if float(np.hypot(*direction)) < 1e-6:
-        direction = _point_at(path, arcs, passage.exit_arc + 0.1) - _point_at(path, arcs, passage.entry_arc - 0.1)
+        direction = point_at_arc(path, arcs, passage.exit_arc + 0.1) - point_at_arc(path, arcs, passage.entry_arc - 0.1)
     normal = np.array([-direction[1], direction[0]]) / max(float(np.hypot(*direction)), 1e-9)
     start, end = max(passage.entry_arc - lead, from_arc), passage.exit_arc + lead
     inside = start >= passage.entry_arc  # in the passage already: the way on starts where the robot is
-    entry = _point_at(path, arcs, start) if inside else passage.entry
+    entry = point_at_arc(path, arcs, start) if inside else passage.entry
     head = (
         np.zeros((0, 2))
         if inside
-        else np.vstack([_point_at(path, arcs, start), path[(arcs > start) & (arcs < passage.entry_arc)]])
+        else np.vstack([point_at_arc(path, arcs, start), path[(arcs > start) & (arcs < passage.entry_arc)]])
     )
-    tail = np.vstack([path[(arcs > passage.exit_arc) & (arcs < end)], _point_at(path, arcs, end)])
+    tail = np.vstack([path[(arcs > passage.exit_arc) & (arcs < end)], point_at_arc(path, arcs, end)])
     if not len(returns):
         return np.zeros((2, 2)), float("inf")
     fixed = float(distance_to_polyline(returns, tail).min())
@@ -261,8 +261,3 @@ def _segment_distances(starts: NDArray, ends: NDArray, points: NDArray) -> NDArr
     rel = points[None, :, :] - starts[:, None, :]
     along = np.clip((rel * vectors[:, None, :]).sum(axis=2) / lengths2[:, None], 0.0, 1.0)
     return np.hypot(*(rel - along[..., None] * vectors[:, None, :]).transpose(2, 0, 1))
-
-
-def _point_at(path: NDArray, arcs: NDArray, arc: float) -> NDArray[np.float64]:
-    """The point of ``path`` (K, 2) at arc length ``arc`` (clamped)."""
-    return np.array([np.interp(arc, arcs, path[:, 0]), np.interp(arc, arcs, path[:, 1])])

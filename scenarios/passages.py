@@ -25,6 +25,7 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 
+from navkit.geometry import point_at_arc
 from scenarios.route_space import CLEARANCE_SLACK_M, PASS_MARGIN_M, ROUTE_MARGIN_M, RouteSpace
 from scenarios.world import World
 
@@ -49,14 +50,6 @@ def _leave_distance(world: World, centre: NDArray, direction: NDArray, level: fl
     values = world.clearances_at(centre + t[:, None] * direction)
     above = np.nonzero(values >= level)[0]
     return float(t[above[0]]) if len(above) else None
-
-
-def _point_at(points: NDArray, arc: NDArray, value: float) -> NDArray[np.float64]:
-    """The point of a polyline at arc length ``value`` (clamped)."""
-    i = int(np.clip(np.searchsorted(arc, value), 1, len(arc) - 1))
-    span = arc[i] - arc[i - 1]
-    t = 0.0 if span <= 0 else float(np.clip((value - arc[i - 1]) / span, 0.0, 1.0))
-    return points[i - 1] + t * (points[i] - points[i - 1])
 
 
 def _segment_profiles(
@@ -206,7 +199,7 @@ class _Walk:
         """An approach point straight behind where the walk enters the stretch, and the walk
         index it is joined from."""
         points, arc, comfortable = self.points, self.arc, self.comfortable
-        inward = _point_at(points, arc, arc[s] + AXIS_WINDOW_M) - points[s]
+        inward = point_at_arc(points, arc, arc[s] + AXIS_WINDOW_M) - points[s]
         if np.linalg.norm(inward) < 1e-9:
             return None
         inward /= np.linalg.norm(inward)
