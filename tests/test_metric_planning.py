@@ -13,7 +13,7 @@ from baselines.metric_grid.planning import GridPlanner
 from navkit import grid_search
 from navkit.geometry import distance_to_polyline
 from navkit.grid_planning import plan_path
-from navkit.raster import FREE, OCCUPIED
+from navkit.raster import FREE, OCCUPIED, UNKNOWN
 
 RADIUS = 0.3  # the benchmark robot's
 SQRT1_2 = 0.5**0.5
@@ -154,3 +154,28 @@ def test_free_space_that_meets_only_at_a_wall_corner_is_not_joined():
         assert grid_search.theta_star(mask, (5, 5), (14, 14)) is None
     planner = GridPlanner(grid, RADIUS, PlanningConfig(unknown_fallback=False))
     assert planner.plan(np.array([0.5, 0.5]), np.array([1.5, 1.5]), np.zeros((0, 2))) is None
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_would(seed):
+    """Blocked cells (a shut door, a box) change every level's mask only near them: the masks the
+    planner remakes in their window equal a transform of the whole map with them as walls."""
+    rng = np.random.default_rng(seed)
+    cells = np.full((120, 160), FREE, np.uint8)
+    cells[rng.random(cells.shape) < 0.02] = OCCUPIED  # speckle, and walls with doors of 6-11 cells
+    for col in range(20, 160, 35):
+        cells[:, col] = OCCUPIED
+        door = int(rng.integers(10, 100))
+        cells[door : door + int(rng.integers(6, 12)), col] = FREE
+    cells[rng.random(cells.shape) < 0.01] = UNKNOWN  # a few unknown cells
+    planner = GridPlanner(GridMap(cells, np.zeros(2), RES), RADIUS, PlanningConfig(unknown_fallback=True))
+    blocked = np.zeros(cells.shape, bool)
+    centre = rng.integers([10, 10], [110, 150])
+    blocked[tuple((centre + rng.integers(-6, 7, size=(12, 2))).T)] = True
+    if seed % 2:
+        blocked[tuple(rng.integers([0, 0], cells.shape, size=(3, 2)).T)] = True  # and far apart
+    for key in planner.attempts:
+        kind, radius, medial = key
+        free = (cells == FREE) if kind == "known" else (cells != OCCUPIED)
+        whole = grid_search.passable(grid_search.clearance_squared(free & ~blocked), radius, RES, medial)
+        assert np.array_equal(planner.with_blocked(key, blocked), whole), key

@@ -90,11 +90,8 @@ class GridPlanner:
         blocked = self._blocked_cells(frame, obstacles) if len(obstacles) else None
 
         def mask(level: int) -> NDArray[np.bool_]:
-            kind, radius, medial = key = self.attempts[level]
-            if blocked is None:
-                return self.eroded[key]
-            squared = grid_search.clearance_squared(self._base(kind) & ~blocked)
-            return grid_search.passable(squared, radius, grid.resolution, medial)
+            key = self.attempts[level]
+            return self.eroded[key] if blocked is None else self.with_blocked(key, blocked)
 
         return plan_path(
             mask,
@@ -108,6 +105,35 @@ class GridPlanner:
             hold_m=self.hold,
             horizon_m=self.config.keep_clear_horizon,
         )
+
+    def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """The eroded mask of level ``key`` with the ``blocked`` cells (H, W) made walls: the mask
+        made again only round them. A blocked cell changes the mask no farther than the level's
+        radius and three cells (its clearance, the medial axis's neighbours, the diagonal bridges),
+        so the window of the blocked cells grown by that much is made again, from the base free
+        space of the window grown by as much again (every cell pasted has its nearest wall inside,
+        or more room than the radius): the same mask as a whole-map transform, at the window's cost."""
+        kind, radius, medial = key
+        rows, cols = np.nonzero(blocked)
+        if not len(rows):
+            return self.eroded[key]
+        height, width = blocked.shape
+        grow = int(np.ceil(radius / self.grid_map.resolution)) + 3
+        paste = (
+            max(rows.min() - grow, 0),
+            min(rows.max() + grow + 1, height),
+            max(cols.min() - grow, 0),
+            min(cols.max() + grow + 1, width),
+        )
+        crop = (max(paste[0] - grow, 0), min(paste[1] + grow, height), max(paste[2] - grow, 0), min(paste[3] + grow, width))
+        window = (slice(crop[0], crop[1]), slice(crop[2], crop[3]))
+        free = self._base(kind)[window] & ~blocked[window]
+        remade = grid_search.passable(grid_search.clearance_squared(free), radius, self.grid_map.resolution, medial)
+        out = self.eroded[key].copy()
+        out[paste[0] : paste[1], paste[2] : paste[3]] = remade[
+            paste[0] - crop[0] : paste[1] - crop[0], paste[2] - crop[2] : paste[3] - crop[2]
+        ]
+        return out
 
     def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
         """One line on a plan that found nothing: from and to (map frame), the levels tried, and on
