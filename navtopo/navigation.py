@@ -161,7 +161,8 @@ class Navigator:
     map_poses: NDArray[np.float64] | None = None  # (V, 3) vertices in the map frame, for map-frame goals
     goal: Goal | None = None
     localized: bool = False
-    planning_ms: list[float] = field(default_factory=list)
+    planning_ms: list[float] = field(default_factory=list)  # plans after the start-up committed
+    startup_planning_ms: list[float] = field(default_factory=list)  # plans while driving by a hypothesis
     first_plan_ms: float | None = None
     localizations: list[Localization] = field(default_factory=list)
     counters: dict[str, int] = field(default_factory=dict)
@@ -187,6 +188,7 @@ class Navigator:
         self.goal = None
         self.localized = False
         self.planning_ms = []
+        self.startup_planning_ms = []
         self.first_plan_ms = None
         self.localizations = []
         self.counters = dict.fromkeys(
@@ -207,6 +209,10 @@ class Navigator:
             0,
         )
         self.maintainer.forget()
+        # cold: nothing built from the map for planning or matching carries over from the last
+        # trial (a first plan times every grid it needs)
+        self.unions.clear()
+        self.maintainer.grids.clear()
         self.unions.take_build_ms()  # the last trial's
         self.startup.reset()
         self.global_planner.reset()
@@ -323,6 +329,12 @@ class Navigator:
         # from the committed pose on mark what is there
         self.obstacles.clear()
         self._obstacle_vertex = None
+        # the first plan from here is timed cold: the union grids the start-up built go (their
+        # milliseconds to the start-up's), and the first plan builds what it needs
+        self.unions.clear()
+        built = self.unions.take_build_ms()
+        if built > 0:
+            self.startup_planning_ms.append(built)
         self.status = NavStatus(detail=f"localized in location {committed.vertex} after {startup.looks} looks")
         return self._drive(obs, committed.vertex, committed.pose)
 
@@ -477,8 +489,11 @@ class Navigator:
     def _timed(self, t0: float) -> None:
         # with the union grids built since the last plan (the new-obstacle check asks first)
         elapsed = (time.perf_counter() - t0) * 1e3 + self.unions.take_build_ms()
+        if not self.localized:  # start-up plans, counted apart
+            self.startup_planning_ms.append(elapsed)
+            return
         self.planning_ms.append(elapsed)
-        if self.first_plan_ms is None and self.localized:
+        if self.first_plan_ms is None:
             self.first_plan_ms = elapsed
 
     def _at_path_end(self) -> bool:

@@ -366,6 +366,7 @@ class UnionGrids:
         if union is None:
             started = time.perf_counter()
             union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls)
+            union.wall_distance  # noqa: B018 - made here, timed with the grid: every tick's new-obstacle check needs it
             self._build_ms += (time.perf_counter() - started) * 1e3
             self._cache[vertex] = union
             if len(self._cache) > self.config.union_cache:

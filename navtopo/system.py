@@ -223,6 +223,7 @@ class NavTopo:
         return {
             "planning_ms": list(nav.planning_ms),
             "first_plan_ms": nav.first_plan_ms,
+            "startup_planning_ms": list(nav.startup_planning_ms),
             "map_bytes": self.memory().map,
             "counters": {**counters, **nav.counters},
             "localizations": [loc.as_json() for loc in nav.localizations],
