@@ -65,6 +65,7 @@ def plan_path(
     prefer_m: float = 0.0,
     hold_m: float = 0.0,
     horizon_m: float | None = None,
+    sight: Callable[[int], NDArray[np.uint8] | None] | None = None,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
@@ -78,6 +79,8 @@ def plan_path(
     clearance the path keeps where the free space allows: the path found is eased (``ease_path``,
     on the level's passable cells; its points less clear than ``hold_m`` stay, e.g. on a narrow
     passage's medial line; only its first ``horizon_m`` metres, if set). None (default): as found.
+    sight: the i-th mask's ``grid_search.sight_raster``, for a caller that keeps it (None, or a
+    callable that gives None: made for each search).
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -90,7 +93,7 @@ def plan_path(
         goal = grid_search.nearest_free(passable, goal_cell, snap_cells)
         if start is None or goal is None:
             continue
-        cells = grid_search.theta_star(passable, start, goal)
+        cells = grid_search.theta_star(passable, start, goal, None if sight is None else sight(level))
         if cells is None:
             continue
         end_xy = goal_xy if exact_goal else frame.to_world(cells[-1:])[0]

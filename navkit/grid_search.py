@@ -746,17 +746,26 @@ def astar(free: ArrayLike, start: ArrayLike, goal: ArrayLike) -> CellPath | None
     return cells if cells.shape[0] > 0 else None
 
 
-def theta_star(free: ArrayLike, start: ArrayLike, goal: ArrayLike) -> CellPath | None:
+def sight_raster(free: ArrayLike) -> NDArray[np.uint8]:
+    """(H, W) uint8 the Chebyshev clearance (cells) of ``free`` that ``theta_star``'s line of sight
+    leaps on: a caller that searches one mask often makes it once and passes it."""
+    return np.asarray(_chebyshev_clearance(_as_grid(free)), dtype=np.uint8)
+
+
+def theta_star(
+    free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDArray[np.uint8] | None = None
+) -> CellPath | None:
     """Any-angle path: Lazy Theta*, then shortcut and vertex refinement (all compiled).
 
-    free: (H, W) bool; start, goal: (row, col). Returns the (K, 2) int64 vertices of a
-    polyline from start to goal whose every segment has ``line_of_sight``, or None. Its
-    length is within 1 % of the continuous shortest path through the free cells.
+    free: (H, W) bool; start, goal: (row, col); sight: ``sight_raster(free)`` if the caller keeps it
+    (else made here, a pass over the whole mask). Returns the (K, 2) int64 vertices of a polyline
+    from start to goal whose every segment has ``line_of_sight``, or None. Its length is within 1 %
+    of the continuous shortest path through the free cells.
     """
     grid, start, goal = _as_grid(free), _cell(start), _cell(goal)
     if not (_is_free(grid, start) and _is_free(grid, goal)):
         return None
-    clear = _chebyshev_clearance(grid)
+    clear = _chebyshev_clearance(grid) if sight is None else sight
     cells = _lazy_theta_kernel(clear, start[0], start[1], goal[0], goal[1])
     if cells.shape[0] == 0:
         return None

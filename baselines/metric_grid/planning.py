@@ -61,6 +61,7 @@ class GridPlanner:
         self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
             key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
         }
+        self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}  # made on a level's first search
 
     def roomy_at(self, points: NDArray) -> NDArray[np.bool_]:
         """Points (N, 2, map frame) -> the known free space there leaves the first level's clearance
@@ -75,8 +76,10 @@ class GridPlanner:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the eroded masks and the clearance raster (the planner's derived state)."""
-        return sum(int(mask.nbytes) for mask in self.eroded.values()) + int(self._clearance.nbytes)
+        """Bytes of the eroded masks, the clearance raster and the line-of-sight rasters of the levels
+        searched (the planner's derived state)."""
+        kept = [*self.eroded.values(), self._clearance, *self._sight.values()]
+        return sum(int(array.nbytes) for array in kept)
 
     def _base(self, kind: str) -> NDArray[np.bool_]:
         return self._known_free if kind == "known" else self._not_occupied
@@ -93,6 +96,16 @@ class GridPlanner:
             key = self.attempts[level]
             return self.eroded[key] if blocked is None else self.with_blocked(key, blocked)
 
+        def sight(level: int) -> NDArray[np.uint8] | None:
+            # a static mask's line-of-sight raster is kept once made (remade for every search it
+            # was most of a plan's search time on a large map); a mask with obstacles is new each time
+            if blocked is not None:
+                return None
+            key = self.attempts[level]
+            if key not in self._sight:
+                self._sight[key] = grid_search.sight_raster(self.eroded[key])
+            return self._sight[key]
+
         return plan_path(
             mask,
             frame,
@@ -104,6 +117,7 @@ class GridPlanner:
             prefer_m=self.prefer,
             hold_m=self.hold,
             horizon_m=self.config.keep_clear_horizon,
+            sight=sight,
         )
 
     def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.bool_]) -> NDArray[np.bool_]:
