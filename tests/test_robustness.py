@@ -452,8 +452,10 @@ def test_ctrl_c_during_trials_exits_130_and_the_run_resumes_with_nothing_lost(tm
     import subprocess
     import sys
 
+    from test_scaleout import short_tiny
+
     out = tmp_path / "run"
-    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle", "--out", str(out)]
+    command = [sys.executable, "-m", "runners.cli", "run", str(short_tiny(tmp_path)), "--systems", "oracle", "--out", str(out)]
     process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     trials = out / "trials.jsonl"
     try:
@@ -489,16 +491,19 @@ def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_pat
     import json
     import shutil
 
+    from test_scaleout import short_tiny
+
     first, second = tmp_path / "first", tmp_path / "second"
-    result = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--trials", "0", "--out", str(first)])
+    scenario = str(short_tiny(tmp_path))  # the oracle maps nothing: a 3 m route
+    result = CliRunner().invoke(app, ["run", scenario, "--systems", "oracle", "--trials", "0", "--out", str(first)])
     assert result.exit_code == 0, result.output
     assert f"no trials run (--trials 0): navigate these maps with --maps-from {first}" in result.output
     assert "success" not in result.output  # no empty table
-    route_m = round(load_scenario("tiny", with_trials=False).route_length_m)
+    route_m = round(load_scenario(scenario, with_trials=False).route_length_m)
     assert f"{route_m}/{route_m}" in result.output  # the mapping bar ends full, with no trials to fill it
     (first / "maps" / "oracle" / "oracle.json").unlink()  # a damaged map folder
     result = CliRunner().invoke(
-        app, ["run", "tiny", "--systems", "oracle", "--trials", "2", "--maps-from", str(first), "--out", str(second)]
+        app, ["run", scenario, "--systems", "oracle", "--trials", "2", "--maps-from", str(first), "--out", str(second)]
     )
     line = one_line_error(result, code=1)
     assert "navigation stage failed" in line and "oracle: the map in " in line and f"--resume {second}" in line

@@ -46,6 +46,16 @@ def short_tiny(folder: Path, extra_trials: int = 0) -> Path:
     return path
 
 
+def one_tour_tiny(folder: Path) -> Path:
+    """`tiny` with its mapping route one tour of the building (40 m) instead of two: every goal is
+    mapped, for tests of the runner's machinery that need a system which maps."""
+    spec = yaml.safe_load((ROOT / "scenarios" / "bundled" / "tiny.yaml").read_text())
+    spec["mapping_route"] = {"auto": {"min_length": 1.0}}
+    path = folder / "one_tour_tiny.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
 def goal_in_map(scenario, index: int) -> list[float]:
     trial = scenario.trials[index]
     return [float(v) for v in se2.transform_points(se2.inverse(scenario.route_start), trial.goal[None, :])[0]]
@@ -156,7 +166,8 @@ def test_a_system_that_raises_while_mapping_is_a_failed_stage_in_one_line(tmp_pa
 
 
 def _run_tiny(out: Path, *flags: str, env: dict[str, str] | None = None) -> Path:
-    command = [sys.executable, "-m", "runners.cli", "run", "tiny", "--systems", "oracle,metric_grid", "--out", str(out), *flags]
+    scenario = str(one_tour_tiny(out.parent))
+    command = [sys.executable, "-m", "runners.cli", "run", scenario, "--systems", "oracle,metric_grid", "--out", str(out), *flags]
     environment = {**os.environ, **(env or {})}
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600, env=environment)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -214,7 +225,9 @@ def _run_two_seeds(results: Path, workers: int, monkeypatch) -> RecordingExecuto
 
     RecordingExecutor.opened = []
     monkeypatch.setattr(runners.executors, "LocalExecutor", RecordingExecutor)
-    args = ["run", "tiny", "--seeds", "1,2", "--systems", "oracle,metric_grid", "--trials", "1", "--workers", str(workers)]
+    results.mkdir(parents=True)
+    scenario = str(one_tour_tiny(results))
+    args = ["run", scenario, "--seeds", "1,2", "--systems", "oracle,metric_grid", "--trials", "1", "--workers", str(workers)]
     result = CliRunner().invoke(app, [*args, "--results", str(results)])
     assert result.exit_code == 0, result.output
     assert len(RecordingExecutor.opened) == 1, "one executor for the runs of one command"
