@@ -111,6 +111,16 @@ def test_bootstrap_is_seeded_needs_five_values_and_brackets_the_statistic():
     assert stats.bootstrap_pooled([[1.0]] * 4) is None
 
 
+@pytest.mark.parametrize("quantile", [50.0, 95.0, 3.0])
+def test_a_pooled_quantile_is_np_percentile_of_each_resample_concatenated(quantile):
+    rng = np.random.default_rng(3)
+    groups = [np.round(rng.gamma(2.0, 3.0, size=rng.integers(0, 60)), 1) for _ in range(9)]  # ties, an empty one
+    kept = [g for g in groups if len(g)]
+    draws = np.random.default_rng(stats.SEED).integers(0, len(kept), size=(stats.RESAMPLES, len(kept)))
+    each = [np.percentile(np.concatenate([kept[i] for i in pick]), quantile) for pick in draws]
+    assert stats.bootstrap_pooled(groups, quantile) == stats._interval(np.asarray(each))
+
+
 # --- Table 1 against figures computed on paper ---------------------------------------------
 
 
