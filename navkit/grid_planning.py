@@ -20,8 +20,8 @@ is pushed up the clearance's slope until it is ``prefer_m`` clear or at the midd
 while a smoothing pull keeps the band taut; the ends stay put. A point the push would take off the
 level's passable cells stays where it was; if any stretch of the eased path leaves them, the found
 path is kept as it was. The eased path is then thinned (Douglas-Peucker at a quarter cell, which loses
-at most that much clearance; ``simplify_clear``, whose clearance rule thins the scenario
-generator's routes).
+at most that much clearance, by ``simplify_clear``'s clearance rule, the one that thins the scenario
+generator's routes, compiled here on the raster).
 
 Raster convention (``navkit.grid_search``): ``mask[row, col]``, row ↔ y, col ↔ x, the centre of
 cell (r, c) at ``origin + ((c + 0.5) * resolution, (r + 0.5) * resolution)``.
@@ -41,6 +41,8 @@ from navkit import grid_search
 from navkit.raster import GridFrame
 
 ClearanceAt = Callable[[NDArray[np.float64]], NDArray[np.float64]]  # (N, 2) points -> (N,) clearance
+# a cell search: (passable, start cell, goal cell, the mask's sight raster or None) -> (K, 2) cells or None
+Search = Callable[[NDArray[np.bool_], tuple[int, int], tuple[int, int], NDArray[np.uint8] | None], NDArray[np.int64] | None]
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ def plan_path(
     hold_m: float = 0.0,
     horizon_m: float | None = None,
     sight: Callable[[int], NDArray[np.uint8] | None] | None = None,
+    search: Search = grid_search.theta_star,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
@@ -81,6 +84,8 @@ def plan_path(
     passage's medial line; only its first ``horizon_m`` metres, if set). None (default): as found.
     sight: the i-th mask's ``grid_search.sight_raster``, for a caller that keeps it (None, or a
     callable that gives None: made for each search).
+    search: the cell search, ``(passable, start, goal, sight) -> cells or None`` (Lazy Theta*, or
+    ``grid_search.astar_smoothed``).
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -93,7 +98,7 @@ def plan_path(
         goal = grid_search.nearest_free(passable, goal_cell, snap_cells)
         if start is None or goal is None:
             continue
-        cells = grid_search.theta_star(passable, start, goal, None if sight is None else sight(level))
+        cells = search(passable, start, goal, None if sight is None else sight(level))
         if cells is None:
             continue
         end_xy = goal_xy if exact_goal else frame.to_world(cells[-1:])[0]
@@ -165,15 +170,10 @@ def ease_path(
         [(col - frame.origin_cell[1]) * res + frame.origin[0], (row - frame.origin_cell[0]) * res + frame.origin[1]], 1
     )
     eased[0], eased[-1] = dense[0], dense[-1]
-    thinned = simplify_clear(eased, clearance_at(squared, frame), tolerance=res / 4.0, cap=prefer_m, step=res / 4.0, slack=0.0)
-    cells = np.stack(
-        [
-            (thinned[:, 1] - frame.origin[1]) / res + frame.origin_cell[0],
-            (thinned[:, 0] - frame.origin[0]) / res + frame.origin_cell[1],
-        ],
-        1,
-    )
-    return thinned if _stays_on(passable, cells) else points
+    # thinned in cell units: a quarter cell's tolerance, chords sampled every quarter cell
+    keep = np.zeros(len(row), np.bool_)
+    _simplify_clear_kernel(row, col, squared, 0.25, prefer_m / res, 0.25, 0.0, keep)
+    return eased[keep] if _stays_on(passable, np.stack([row[keep], col[keep]], 1)) else points
 
 
 def clearance_at(squared: NDArray, frame: GridFrame) -> ClearanceAt:
@@ -265,6 +265,77 @@ def _ease_kernel(row, col, squared, passable, prefer, hold, weight, iterations, 
                 moved = True
         if not moved:
             break
+
+
+@njit(cache=True)
+def _simplify_clear_kernel(row, col, squared, tolerance, cap, step, slack, keep):
+    """``simplify_clear`` compiled, on points in continuous cell coordinates with the clearance of
+    ``squared`` (every length in cells): ``keep`` (K,) marks the points kept (``True`` on entry:
+    pinned; the ends are kept). The same stretches split at the same points, one at a time (a chord
+    exactly as clear as its stretch may go either way by rounding: 2 of 180 paths on three maps kept
+    a point more or less); ~100x faster than the vectorized one with a callback."""
+    n = row.shape[0]
+    keep[0] = True
+    keep[n - 1] = True
+    clear = np.empty(n)
+    for i in range(n):
+        clear[i] = _clearance_cells(squared, row[i], col[i])
+    pending = np.empty((n, 2), np.int64)  # disjoint stretches: never more than the points
+    count = 0
+    anchor = 0
+    for i in range(1, n):
+        if keep[i]:
+            if i > anchor + 1:
+                pending[count, 0], pending[count, 1] = anchor, i
+                count += 1
+            anchor = i
+    while count > 0:
+        count -= 1
+        first, last = pending[count, 0], pending[count, 1]
+        largest, farthest = _farthest_from_chord(row, col, first, last)
+        fine = largest <= tolerance and _chord_keeps_clear(row, col, squared, clear, first, last, cap, step, slack)
+        if not fine:
+            keep[farthest] = True
+            if farthest > first + 1:
+                pending[count, 0], pending[count, 1] = first, farthest
+                count += 1
+            if last > farthest + 1:
+                pending[count, 0], pending[count, 1] = farthest, last
+                count += 1
+
+
+@njit(cache=True)
+def _farthest_from_chord(row, col, first, last):
+    """(distance, index) of the inner point of a stretch farthest from its chord (the first of equals)."""
+    a_row, a_col = row[first], col[first]
+    d_row, d_col = row[last] - a_row, col[last] - a_col
+    norm2 = d_row * d_row + d_col * d_col
+    largest, farthest = -1.0, first + 1
+    for k in range(first + 1, last):
+        t = 0.0
+        if norm2 >= 1e-18:
+            t = min(max(((row[k] - a_row) * d_row + (col[k] - a_col) * d_col) / norm2, 0.0), 1.0)
+        distance = math.hypot(row[k] - (a_row + t * d_row), col[k] - (a_col + t * d_col))
+        if distance > largest:
+            largest, farthest = distance, k
+    return largest, farthest
+
+
+@njit(cache=True)
+def _chord_keeps_clear(row, col, squared, clear, first, last, cap, step, slack):
+    """Whether a stretch's chord, sampled every ``step``, keeps the least clearance of its points
+    (up to ``cap``) less ``slack``."""
+    need = clear[first]
+    for k in range(first + 1, last + 1):
+        need = min(need, clear[k])
+    need = min(need, cap) - slack
+    d_row, d_col = row[last] - row[first], col[last] - col[first]
+    samples = max(int(math.ceil(math.hypot(d_row, d_col) / step)), 1) + 1
+    for k in range(samples):
+        t = k / (samples - 1)
+        if _clearance_cells(squared, row[first] + t * d_row, col[first] + t * d_col) < need:
+            return False
+    return True
 
 
 def split_at(points: NDArray[np.float64], arc: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

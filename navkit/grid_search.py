@@ -608,6 +608,85 @@ def _lazy_theta_kernel(clear, start_r, start_c, goal_r, goal_c):
 
 
 @njit(cache=True)
+def _field_kernel(free, goal_r, goal_c):
+    """Dijkstra from the goal over the 8-connected moves (no corner cutting): (H, W) float32 the
+    path length in cells from each cell to the goal, inf where no way leads."""
+    height, width = free.shape
+    goal = goal_r * width + goal_c
+    state, g, parent, pos, nodes, keys, ties = _open_search(height * width, goal, 0.0)
+    size = 1
+    field = np.full(height * width, np.inf, np.float32)
+    while size > 0:
+        current, size = _pop(nodes, keys, ties, pos, size)
+        state[current] = _CLOSED
+        field[current] = g[current]
+        r = current // width
+        c = current - r * width
+        moves = _allowed_moves(free, r, c)
+        for k in range(9):
+            if not (moves >> k) & 1:
+                continue
+            dr = k // 3 - 1
+            dc = k % 3 - 1
+            neighbour = current + dr * width + dc
+            if state[neighbour] == _CLOSED:
+                continue
+            g_new = g[current] + (SQRT2 if dr != 0 and dc != 0 else 1.0)
+            if state[neighbour] == _UNSEEN:
+                slot = size
+                size += 1
+                nodes[slot] = neighbour
+                state[neighbour] = _OPEN
+            elif g_new < g[neighbour]:
+                slot = pos[neighbour]
+            else:
+                continue
+            g[neighbour] = g_new
+            keys[slot] = g_new
+            ties[slot] = g_new
+            _sift_up(nodes, keys, ties, pos, slot)
+    return field.reshape(height, width)
+
+
+@njit(cache=True)
+def _descend_kernel(free, field, start_r, start_c):
+    """(K, 2) cells from the start down ``field`` to its goal (each step to the 8-neighbour that
+    the Dijkstra reached it from: the least field value plus the step), or (0, 2) if no way."""
+    out = np.empty((256, 2), np.int64)
+    count = 0
+    r, c = start_r, start_c
+    if not field[r, c] < np.inf:
+        return out[:0]
+    while True:
+        if count == out.shape[0]:
+            grown = np.empty((2 * count, 2), np.int64)
+            grown[:count] = out
+            out = grown
+        out[count, 0] = r
+        out[count, 1] = c
+        count += 1
+        here = field[r, c]
+        if here == 0.0:
+            return out[:count]
+        moves = _allowed_moves(free, r, c)
+        best = np.inf
+        best_r, best_c = -1, -1
+        for k in range(9):
+            if not (moves >> k) & 1:
+                continue
+            nr = r + k // 3 - 1
+            nc = c + k % 3 - 1
+            if not field[nr, nc] < here:
+                continue
+            value = field[nr, nc] + (SQRT2 if nr != r and nc != c else 1.0)
+            if value < best:
+                best, best_r, best_c = value, nr, nc
+        if best_r < 0:  # cannot happen on a field of this mask: no way rather than a loop
+            return out[:0]
+        r, c = best_r, best_c
+
+
+@njit(cache=True)
 def _shortcut(clear, cells):
     """Greedy string pulling: from each kept vertex jump to the farthest one still in sight."""
     count = cells.shape[0]
@@ -773,6 +852,53 @@ def theta_star(
         cells = _shortcut(clear, cells)
         cells = _shortcut(clear, _refine(clear, cells, 20))
     return cells
+
+
+def goal_field(free: ArrayLike, goal: ArrayLike) -> NDArray[np.float32]:
+    """(H, W) float32 the length in cells of the shortest 8-connected path (no corner cutting) from
+    each cell of ``free`` to ``goal`` (row, col); inf where none leads. Made once per goal, it
+    gives every later path to that goal by ``field_path``, from any start, without a search."""
+    grid, goal = _as_grid(free), _cell(goal)
+    if not _is_free(grid, goal):
+        return np.full(grid.shape, np.inf, np.float32)
+    return np.asarray(_field_kernel(grid, goal[0], goal[1]))
+
+
+def field_path(free: ArrayLike, field: NDArray[np.float32], start: ArrayLike, sight: NDArray[np.uint8]) -> CellPath | None:
+    """The path from ``start`` (row, col) to the goal of ``field`` (``goal_field`` of ``free``): the
+    field descended (a shortest 8-connected path), then the shortcut and vertex refinement that
+    ``theta_star`` ends with, on ``sight`` (``sight_raster(free)``). None if no way leads."""
+    grid, start = _as_grid(free), _cell(start)
+    if not _is_free(grid, start):
+        return None
+    cells = _descend_kernel(grid, field, start[0], start[1])
+    if cells.shape[0] == 0:
+        return None
+    return _pulled(sight, cells)
+
+
+def _pulled(sight: NDArray[np.uint8], cells: NDArray[np.int64]) -> NDArray[np.int64]:
+    """A cell path shortened: string pulling from its start and from its goal, each refined, the
+    shorter kept (greedy pulling from one end misses a bend the other end finds)."""
+    if cells.shape[0] <= 2:
+        return cells
+    forward = _shortcut(sight, _refine(sight, _shortcut(sight, cells), 20))
+    backward = _shortcut(sight, _refine(sight, _shortcut(sight, cells[::-1].copy()), 20))[::-1]
+    return forward if path_length(forward, 1.0) <= path_length(backward, 1.0) else np.ascontiguousarray(backward)
+
+
+def astar_smoothed(free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDArray[np.uint8] | None = None) -> CellPath | None:
+    """``astar``'s 8-connected shortest path, then ``theta_star``'s shortcut and refinement: an
+    any-angle path (``line_of_sight`` on every segment) found with cheaper expansions than
+    Lazy Theta*'s, 0.1-0.3 % longer on the baseline's maps (BENCHMARKS.md)."""
+    grid, start, goal = _as_grid(free), _cell(start), _cell(goal)
+    if not (_is_free(grid, start) and _is_free(grid, goal)):
+        return None
+    clear = _chebyshev_clearance(grid) if sight is None else sight
+    cells = _astar_kernel(grid, start[0], start[1], goal[0], goal[1])
+    if cells.shape[0] == 0:
+        return None
+    return _pulled(clear, cells)
 
 
 def nearest_free(free: ArrayLike, cell: ArrayLike, max_radius_cells: int) -> Cell | None:

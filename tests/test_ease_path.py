@@ -126,3 +126,29 @@ def test_no_preference_keeps_the_shortest_path():
     plain, _, _, _ = _plan(free, (1.0, 2.75), (11.0, 2.75))
     zero, _, _, _ = _plan(free, (1.0, 2.75), (11.0, 2.75), 0.0)
     np.testing.assert_array_equal(plain.points, zero.points)
+
+
+def test_the_compiled_thinning_keeps_the_points_simplify_clear_keeps():
+    """The easing's thinning runs compiled in cell units; on wobbly paths along a corridor with a
+    pillar (chords that must keep the clearance, and some that cannot) it keeps the points the
+    vectorized ``simplify_clear`` keeps, at a slack that keeps exact ties out of the comparison."""
+    from navkit.grid_planning import _simplify_clear_kernel, clearance_at, simplify_clear
+
+    free = np.zeros((40, 120), bool)
+    free[5:35, 2:118] = True
+    free[17:23, 50:56] = False  # a pillar
+    frame = GridFrame(np.zeros(2), RES)
+    squared = grid_search.clearance_squared(free)
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        x = np.linspace(0.5, 11.5, 90)
+        y = 2.0 + 1.2 * np.sin(x * rng.uniform(0.3, 1.5)) + rng.normal(0.0, 0.03, x.size)
+        points = np.stack([x, y], 1)
+        cells = points[:, ::-1] / RES  # continuous (row, col): the frame sits at the origin
+        keep = np.zeros(len(points), bool)
+        keep[45] = True  # pinned
+        _simplify_clear_kernel(cells[:, 0].copy(), cells[:, 1].copy(), squared, 0.25, 6.0, 0.25, 0.01, keep)
+        pinned = np.zeros(len(points), bool)
+        pinned[45] = True
+        expected = simplify_clear(points, clearance_at(squared, frame), RES / 4, cap=0.6, step=RES / 4, slack=0.001, pinned=pinned)
+        assert np.array_equal(points[keep], expected)

@@ -170,20 +170,9 @@ def test_theta_star_in_the_open_is_one_straight_segment():
     assert path.tolist() == [[3, 2], [37, 45]]
 
 
-def test_astar_is_8_connected_optimal_and_not_shorter_than_theta_star(room):
-    free = gs.inflate_free(room, RADIUS, RES)[::2, ::2]  # 80 x 120: small enough for Dijkstra
-    start, goal = (10, 20), (12, 100)
-    path = gs.astar(free, start, goal)
-    assert path is not None and tuple(path[0]) == start and tuple(path[-1]) == goal
-    steps = np.diff(path, axis=0)
-    assert (np.abs(steps).max(axis=1) == 1).all()  # every step to an 8-neighbour
-    assert free[path[:, 0], path[:, 1]].all()
-    diagonal = (steps != 0).all(axis=1)
-    corners_a = free[path[:-1][diagonal, 0] + steps[diagonal, 0], path[:-1][diagonal, 1]]
-    corners_b = free[path[:-1][diagonal, 0], path[:-1][diagonal, 1] + steps[diagonal, 1]]
-    assert corners_a.all() and corners_b.all()  # no diagonal step cuts a corner
-
-    # exact 8-connected shortest path length by Dijkstra over the same moves
+def eight_connected_graph(free: np.ndarray) -> coo_matrix:
+    """The 8-connected moves between free cells (no diagonal past a blocked side cell), weighted by
+    their lengths in cells, as a sparse matrix over the flat cell indices."""
     height, width = free.shape
     index = np.arange(free.size).reshape(free.shape)
     rows, cols, weights = [], [], []
@@ -198,10 +187,25 @@ def test_astar_is_8_connected_optimal_and_not_shorter_than_theta_star(room):
         rows.append(index[a][ok])
         cols.append(index[b][ok])
         weights.append(np.full(ok.sum(), math.hypot(dr, dc)))
-    graph = coo_matrix(
-        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
-        shape=(free.size, free.size),
-    )
+    return coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(free.size, free.size))
+
+
+def test_astar_is_8_connected_optimal_and_not_shorter_than_theta_star(room):
+    free = gs.inflate_free(room, RADIUS, RES)[::2, ::2]  # 80 x 120: small enough for Dijkstra
+    start, goal = (10, 20), (12, 100)
+    path = gs.astar(free, start, goal)
+    assert path is not None and tuple(path[0]) == start and tuple(path[-1]) == goal
+    steps = np.diff(path, axis=0)
+    assert (np.abs(steps).max(axis=1) == 1).all()  # every step to an 8-neighbour
+    assert free[path[:, 0], path[:, 1]].all()
+    diagonal = (steps != 0).all(axis=1)
+    corners_a = free[path[:-1][diagonal, 0] + steps[diagonal, 0], path[:-1][diagonal, 1]]
+    corners_b = free[path[:-1][diagonal, 0], path[:-1][diagonal, 1] + steps[diagonal, 1]]
+    assert corners_a.all() and corners_b.all()  # no diagonal step cuts a corner
+
+    # exact 8-connected shortest path length by Dijkstra over the same moves
+    index = np.arange(free.size).reshape(free.shape)
+    graph = eight_connected_graph(free)
     best = dijkstra(graph, directed=False, indices=index[start])[index[goal]]
     assert gs.path_length(path, 1.0) == pytest.approx(best, abs=1e-9)
     any_angle = gs.path_length(gs.theta_star(free, start, goal), 1.0)
@@ -300,3 +304,35 @@ def test_passable_joins_every_diagonal_touch_through_a_clear_free_side_cell():
             pairs = np.unique(np.stack([eight.ravel()[cells], four.ravel()[cells]]), axis=1)
             assert len(np.unique(pairs[0])) == pairs.shape[1]
     assert bridged and corners  # both cases met
+
+
+@pytest.mark.parametrize("start, goal", [((20, 30), (30, 210)), ((60, 100), (15, 140)), ((10, 105), (10, 135))])
+def test_astar_string_pulled_matches_the_exact_shortest_path_around_a_wall(room, start, goal):
+    free = gs.inflate_free(room, RADIUS, RES)
+    path = gs.astar_smoothed(free, start, goal)
+    assert path is not None and tuple(path[0]) == start and tuple(path[-1]) == goal
+    start_xy, goal_xy = GridFrame(np.zeros(2), RES).to_world(np.array([start, goal]))
+    assert gs.path_length(path, RES) == pytest.approx(around_wall_end(start_xy, goal_xy), rel=0.01)
+    assert all(gs.line_of_sight(free, a, b) for a, b in zip(path[:-1], path[1:], strict=True))
+
+
+def test_a_goal_field_is_dijkstra_from_the_goal_and_gives_paths_from_any_start(room):
+    free = gs.inflate_free(room, RADIUS, RES)[::2, ::2]
+    free[40:44, 70:90] = False  # a second obstacle, and cells no way reaches
+    free[5:8, 5:8] = True
+    free[4, 4:9] = free[8, 4:9] = free[4:9, 4] = free[4:9, 8] = False
+    goal = (12, 100)
+    field = gs.goal_field(free, goal)
+    index = np.arange(free.size).reshape(free.shape)
+    exact = dijkstra(eight_connected_graph(free), directed=False, indices=index[goal]).reshape(free.shape)
+    reached = np.isfinite(exact) & free
+    assert np.array_equal(np.isfinite(field), reached)
+    assert field[reached] == pytest.approx(exact[reached], rel=1e-6)  # float32
+    sight = gs.sight_raster(free)
+    for start in [(10, 20), (70, 10), (45, 80), (12, 101)]:
+        path = gs.field_path(free, field, start, sight)
+        assert path is not None and tuple(path[0]) == start and tuple(path[-1]) == goal
+        assert all(gs.line_of_sight(free, a, b) for a, b in zip(path[:-1], path[1:], strict=True))
+        any_angle = gs.path_length(gs.theta_star(free, start, goal), 1.0)
+        assert gs.path_length(path, 1.0) == pytest.approx(any_angle, rel=0.01)  # either may be the shorter
+    assert gs.field_path(free, field, (6, 6), sight) is None  # the sealed pocket

@@ -1,4 +1,5 @@
-"""The metric baseline's global planner: Lazy Theta* on the map's free cells (DESIGN.md).
+"""The metric baseline's global planner: A* string-pulled to an any-angle path (or Lazy Theta*,
+``PlanningConfig.search``) on the map's free cells (DESIGN.md).
 
 As a Nav2 user's global planner on a static map: the map's known free cells eroded by the robot
 radius plus a margin (and half a cell, so the clearance holds to the cell boundary), then by the
@@ -30,10 +31,11 @@ from .config import PlanningConfig
 from .occupancy import GridMap
 
 CLEARANCE_CAP = 255  # squared cells
+SEARCHES = {"astar": grid_search.astar_smoothed, "theta_star": grid_search.theta_star}  # PlanningConfig.search
 
 
 class GridPlanner:
-    """Theta* on a loaded map, with the eroded masks of its fallback levels prepared once."""
+    """The search on a loaded map, with the eroded masks of its fallback levels prepared once."""
 
     def __init__(self, grid_map: GridMap, robot_radius: float, config: PlanningConfig) -> None:
         self.grid_map = grid_map
@@ -62,6 +64,11 @@ class GridPlanner:
             key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
         }
         self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}  # made on a level's first search
+
+    def forget(self) -> None:
+        """Drop what searches made (each level's line-of-sight raster): a trial's first plan makes
+        what it needs, as NavTopo's does (the masks, eroded when the map is loaded, stay)."""
+        self._sight.clear()
 
     def roomy_at(self, points: NDArray) -> NDArray[np.bool_]:
         """Points (N, 2, map frame) -> the known free space there leaves the first level's clearance
@@ -118,6 +125,7 @@ class GridPlanner:
             hold_m=self.hold,
             horizon_m=self.config.keep_clear_horizon,
             sight=sight,
+            search=SEARCHES[self.config.search],
         )
 
     def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -227,6 +227,8 @@ class MetricGrid:
         self._start_over()
         self.obstacles.reset()  # the latest scan's new obstacles too
         self.plan_counters = dict.fromkeys(self.plan_counters, 0)
+        if self.planner is not None:
+            self.planner.forget()  # cold: the first plan makes its line-of-sight rasters again
 
     def set_initial_pose(self, pose: ArrayLike) -> None:
         """The robot's pose (3,) in the map frame, as a Nav2 user sets it (by hand: it may be off by
