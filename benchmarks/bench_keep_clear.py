@@ -48,7 +48,7 @@ def main() -> None:
         "shortest": GridPlanner(grid, ROBOT_RADIUS, PlanningConfig(keep_clear=0.0)),
         "eased": GridPlanner(grid, ROBOT_RADIUS, PlanningConfig()),
     }
-    first = planners["eased"].eroded[planners["eased"].attempts[0]]
+    first = planners["eased"].mask(planners["eased"].attempts[0])
     cells = np.argwhere(first)
     points = grid.frame.to_world(cells)
     rng = np.random.default_rng(args.seed)

@@ -68,7 +68,7 @@ def main() -> None:
         "whole map": WholeMap(grid, ROBOT_RADIUS, PlanningConfig()),
     }
     window = planners["window"]
-    points = grid.frame.to_world(np.argwhere(window.eroded[window.attempts[0]]))
+    points = grid.frame.to_world(np.argwhere(window.mask(window.attempts[0])))
     rng = np.random.default_rng(args.seed)
     none = np.zeros((0, 2))
     for planner in planners.values():  # compile the kernels

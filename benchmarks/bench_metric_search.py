@@ -38,7 +38,7 @@ def timed(function: Callable[..., Any], *args: Any) -> tuple[Any, float]:
 def measure(run: Path, pairs: int, seed: int) -> None:
     grid = load_grid_map(run / "maps" / "metric_grid")
     planner = GridPlanner(grid, ROBOT_RADIUS, PlanningConfig())
-    mask = planner.eroded[planner.attempts[0]]
+    mask = planner.mask(planner.attempts[0])
     sight = gs.sight_raster(mask)
     free = np.argwhere(mask)
     rng = np.random.default_rng(seed)

@@ -43,7 +43,7 @@ def main() -> None:
     args = parser.parse_args()
     grid = load_grid_map(args.run / "maps" / "metric_grid")
     planner = GridPlanner(grid, ROBOT_RADIUS, PlanningConfig())
-    points = grid.frame.to_world(np.argwhere(planner.eroded[planner.attempts[0]]))
+    points = grid.frame.to_world(np.argwhere(planner.mask(planner.attempts[0])))
     rng = np.random.default_rng(args.seed)
     none = np.zeros((0, 2))
     planner.plan(points[0], points[-1], none)  # compile the kernels, make the first level's raster

@@ -150,5 +150,6 @@ def test_the_compiled_thinning_keeps_the_points_simplify_clear_keeps():
         _simplify_clear_kernel(cells[:, 0].copy(), cells[:, 1].copy(), squared, 0.25, 6.0, 0.25, 0.01, keep)
         pinned = np.zeros(len(points), bool)
         pinned[45] = True
-        expected = simplify_clear(points, clearance_at(squared, frame), RES / 4, cap=0.6, step=RES / 4, slack=0.001, pinned=pinned)
+        clear_at = clearance_at(squared, frame)
+        expected = simplify_clear(points, clear_at, RES / 4, cap=0.6, step=RES / 4, slack=0.001, pinned=pinned)
         assert np.array_equal(points[keep], expected)

@@ -179,3 +179,25 @@ def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_woul
         free = (cells == FREE) if kind == "known" else (cells != OCCUPIED)
         whole = grid_search.passable(grid_search.clearance_squared(free & ~blocked), radius, RES, medial)
         assert np.array_equal(planner.with_blocked(key, blocked), whole), key
+
+
+def test_the_masks_kept_bit_packed_and_as_sight_rasters_are_the_eroded_free_space():
+    """The planner keeps each level's mask as bits, and a searched level's line-of-sight raster:
+    both give back the level's eroded free space exactly, and its bytes count what is kept."""
+    grid = two_rooms(5)
+    grid.cells[5:9, 60:70] = UNKNOWN
+    planner = GridPlanner(grid, RADIUS, PlanningConfig())
+    for kind, radius, medial in planner.attempts:
+        free = grid.cells == FREE if kind == "known" else grid.cells != OCCUPIED
+        assert np.array_equal(
+            planner.mask((kind, radius, medial)), grid_search.passable(grid_search.clearance_squared(free), radius, RES, medial)
+        )
+    before = planner.nbytes
+    assert before == sum((grid.cells.size + 7) // 8 for _ in planner.attempts) + grid.cells.size  # bits, and the clearance bytes
+    expected = {key: planner.mask(key) for key in planner.attempts}
+    assert planner.plan(np.array([2.0, 1.0]), np.array([6.0, 3.0]), np.zeros((0, 2))) is not None  # the medial level
+    searched = len(planner._sight)
+    assert searched >= 1 and planner.nbytes == before + searched * grid.cells.size
+    assert all(np.array_equal(planner.mask(key), expected[key]) for key in planner.attempts)
+    planner.forget()
+    assert planner.nbytes == before

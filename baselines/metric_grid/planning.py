@@ -41,8 +41,6 @@ class GridPlanner:
         self.grid_map = grid_map
         self.config = config
         res = grid_map.resolution
-        self._known_free = grid_map.cells == FREE
-        self._not_occupied = grid_map.cells != OCCUPIED
         wide = robot_radius + res / 2 + config.inflation_margin
         tight = robot_radius + res / 2
         # (base free mask, radius, medial) in the order they are tried: with the margin, without it,
@@ -60,10 +58,19 @@ class GridPlanner:
         self.wide = wide
         self.prefer = wide + config.keep_clear if config.keep_clear > 0 else 0.0  # 0: no easing
         self.hold = tight  # points on a narrow passage's medial line stay there
-        self.eroded: dict[tuple[str, float, float | None], NDArray[np.bool_]] = {
-            key: grid_search.passable(squared[key[0]], key[1], res, key[2]) for key in self.attempts
+        # every level's mask bit-packed (an eighth of a byte a cell); a level searched keeps its
+        # line-of-sight raster (made on its first search), whose nonzero cells are the mask
+        self._shape = grid_map.cells.shape
+        self._packed: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {
+            key: np.packbits(grid_search.passable(squared[key[0]], key[1], res, key[2]), axis=None) for key in self.attempts
         }
-        self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}  # made on a level's first search
+        self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}
+
+    def mask(self, key: tuple[str, float, float | None]) -> NDArray[np.bool_]:
+        """The eroded mask (H, W) of level ``key`` (made from what is kept: not stored as such)."""
+        if key in self._sight:
+            return self._sight[key] > 0
+        return np.unpackbits(self._packed[key], count=self._shape[0] * self._shape[1]).reshape(self._shape).view(np.bool_)
 
     def forget(self) -> None:
         """Drop what searches made (each level's line-of-sight raster): a trial's first plan makes
@@ -83,13 +90,15 @@ class GridPlanner:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the eroded masks, the clearance raster and the line-of-sight rasters of the levels
-        searched (the planner's derived state)."""
-        kept = [*self.eroded.values(), self._clearance, *self._sight.values()]
+        """Bytes of the bit-packed masks, the clearance raster and the line-of-sight rasters of the
+        levels searched (the planner's derived state)."""
+        kept = [*self._packed.values(), self._clearance, *self._sight.values()]
         return sum(int(array.nbytes) for array in kept)
 
-    def _base(self, kind: str) -> NDArray[np.bool_]:
-        return self._known_free if kind == "known" else self._not_occupied
+    def _base(self, kind: str, window: tuple[slice, slice] = (slice(None), slice(None))) -> NDArray[np.bool_]:
+        """The free space a level erodes (known free cells, or all not occupied), in ``window``."""
+        cells = self.grid_map.cells[window]
+        return cells == FREE if kind == "known" else cells != OCCUPIED
 
     def plan(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> PlannedPath | None:
         """The path from start to goal (both (2,), map frame) on the first level that has one, or
@@ -101,7 +110,7 @@ class GridPlanner:
 
         def mask(level: int) -> NDArray[np.bool_]:
             key = self.attempts[level]
-            return self.eroded[key] if blocked is None else self.with_blocked(key, blocked)
+            return self.mask(key) if blocked is None else self.with_blocked(key, blocked)
 
         def sight(level: int) -> NDArray[np.uint8] | None:
             # a static mask's line-of-sight raster is kept once made (remade for every search it
@@ -110,7 +119,7 @@ class GridPlanner:
                 return None
             key = self.attempts[level]
             if key not in self._sight:
-                self._sight[key] = grid_search.sight_raster(self.eroded[key])
+                self._sight[key] = grid_search.sight_raster(self.mask(key))
             return self._sight[key]
 
         return plan_path(
@@ -138,7 +147,7 @@ class GridPlanner:
         kind, radius, medial = key
         rows, cols = np.nonzero(blocked)
         if not len(rows):
-            return self.eroded[key]
+            return self.mask(key)
         height, width = blocked.shape
         grow = int(np.ceil(radius / self.grid_map.resolution)) + 3
         paste = (
@@ -149,9 +158,9 @@ class GridPlanner:
         )
         crop = (max(paste[0] - grow, 0), min(paste[1] + grow, height), max(paste[2] - grow, 0), min(paste[3] + grow, width))
         window = (slice(crop[0], crop[1]), slice(crop[2], crop[3]))
-        free = self._base(kind)[window] & ~blocked[window]
+        free = self._base(kind, window) & ~blocked[window]
         remade = grid_search.passable(grid_search.clearance_squared(free), radius, self.grid_map.resolution, medial)
-        out = self.eroded[key].copy()
+        out = self.mask(key).copy()
         out[paste[0] : paste[1], paste[2] : paste[3]] = remade[
             paste[0] - crop[0] : paste[1] - crop[0], paste[2] - crop[2] : paste[3] - crop[2]
         ]

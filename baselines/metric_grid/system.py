@@ -414,8 +414,10 @@ class MetricGrid:
         }
 
     def memory(self) -> MemoryBreakdown:
-        """map: the trinary grid; localization: the signed distance field and the relocalizer's
-        score field; derived: the eroded planning masks and the remembered obstacles. While mapping
+        """map: the trinary grid; localization: the signed distance field (int16), the relocalizer's
+        likelihood table and where the robot fits (bits); derived: the planning masks (bits), the
+        clearance raster, the line-of-sight rasters of the levels searched and the remembered
+        obstacles. While mapping
         (no grid yet), the online grid's trinary map; the mapping state is in ``mapping_stats``."""
         if self.grid_map is None:
             return MemoryBreakdown(map=int(self.mapping_stats()["map_bytes"]))
