@@ -349,7 +349,7 @@ class GraphMaintainer:
         pose = self.pose_in_current
         if float(np.hypot(pose[0], pose[1])) > self.config.max_edge_length:
             return ""
-        vertex_grid = self.grids.get(self.current).grid
+        vertex_grid = self.graph.vertices[self.current].grid.to_grid()
         if overlap(vertex_grid, grid, pose, self.grid_config) < self.config.min_overlap:
             return ""
         if self._sees(self.current, pose):
@@ -362,10 +362,11 @@ class GraphMaintainer:
 
     def _sees(self, vertex: int, pose: NDArray[np.float64]) -> bool:
         """Did ``vertex``'s scan see the cell at ``pose`` (its frame)?"""
-        vertex_grid = self.grids.get(vertex).grid
+        cropped = self.graph.vertices[vertex].grid  # its known cells' box: outside it, unknown
         row, col = grid_frame(self.grid_config).to_cell(np.asarray(pose, dtype=np.float64)[None, :2])[0]
-        size = vertex_grid.shape[0]
-        return bool(0 <= row < size and 0 <= col < size and vertex_grid[row, col] != UNKNOWN)
+        row, col = row - cropped.row0, col - cropped.col0
+        height, width = cropped.cells.shape
+        return bool(0 <= row < height and 0 <= col < width and cropped.cells[row, col] != UNKNOWN)
 
     def _still_matches(self, query: PreparedGrid) -> bool:
         """Within ``stay_factor`` times the location's reach, does scan matching still place the robot

@@ -184,7 +184,7 @@ class UnionGrid:
     yaw: float = 0.0  # the grid's axes in the location's frame: turned so that the walls run along them
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
     _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
-    _parts: dict[tuple[str, float, bool], NDArray[np.int32]] = field(default_factory=dict)
+    _parts: dict[tuple[str, float, bool], NDArray[np.integer]] = field(default_factory=dict)
     _wall_distance: NDArray[np.float32] | None = None
 
     def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
@@ -229,7 +229,7 @@ class UnionGrid:
                 self._masks[key] = grid_search.passable(self._squared(kind), radius, self.frame.resolution, medial)
         return self._masks[key]
 
-    def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.int32]:
+    def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.integer]:
         """(H, W) labels of the connected parts of ``mask(kind, radius, medial)`` (0: not passable),
         kept once made."""
         key = (kind, radius, medial is not None)
@@ -567,11 +567,12 @@ def _passable(
     return union.mask(kind, radius, medial) & ~blocked
 
 
-def _parts(passable: NDArray[np.bool_]) -> NDArray[np.int32]:
+def _parts(passable: NDArray[np.bool_]) -> NDArray[np.integer]:
     """Labels of the 4-connected parts of a passable mask: the cells one search can reach from
-    another (``navkit.grid_search`` moves diagonally only between two free cells)."""
-    _, labels = cv2.connectedComponents(passable.view(np.uint8), connectivity=4)
-    return np.asarray(labels, dtype=np.int32)
+    another (``navkit.grid_search`` moves diagonally only between two free cells); in the smallest
+    unsigned type that holds them (a byte a cell for up to 255 parts, not OpenCV's four)."""
+    count, labels = cv2.connectedComponents(passable.view(np.uint8), connectivity=4)
+    return np.asarray(labels, dtype=np.uint8 if count <= 256 else np.uint16 if count <= 65536 else np.int32)
 
 
 def _turned(xy: NDArray, yaw: float) -> NDArray[np.float64]:

@@ -140,7 +140,6 @@ class PreparedGrid:
         grid_config: GridConfig | None = None,
         config: MatchingConfig | None = None,
     ):
-        self.grid = grid
         self.config = config or MatchingConfig()
         self.grid_config = grid_config or GridConfig()
         self.resolution = self.grid_config.resolution
@@ -162,15 +161,15 @@ class PreparedGrid:
         else:
             self.row0 = self.col0 = row1 = col1 = 0
         self.crop = np.ascontiguousarray(grid[self.row0 : row1, self.col0 : col1])
-        self.walls = (self.crop == OCCUPIED).astype(np.uint8)
-        rows, cols = np.nonzero(self.walls)
+        walls = (self.crop == OCCUPIED).astype(np.uint8)
+        rows, cols = np.nonzero(walls)
         rows, cols = rows + self.row0, cols + self.col0
         self.occupied_cells = np.stack([rows, cols], axis=1)
         self.occupied_xy = grid_frame(self.grid_config).to_world(self.occupied_cells)
         self.known_count = int(np.count_nonzero(self.crop))
         if len(self.occupied_xy):
             distance, labels = cv2.distanceTransformWithLabels(
-                1 - self.walls, cv2.DIST_L2, cv2.DIST_MASK_5, labelType=cv2.DIST_LABEL_PIXEL
+                1 - walls, cv2.DIST_L2, cv2.DIST_MASK_5, labelType=cv2.DIST_LABEL_PIXEL
             )
             # map each label (one per wall cell) to the index of that cell in occupied_xy
             lut = np.full(int(labels.max()) + 1, -1, dtype=np.int32)
@@ -183,9 +182,10 @@ class PreparedGrid:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the arrays held for matching (the full grid, its crop, the distance transform,
-        the nearest-wall lookup, wall cells and, once computed, the features)."""
-        arrays = [self.grid, self.crop, self.walls, self.occupied_cells, self.occupied_xy, self.nearest, self.distance]
+        """Bytes of the arrays held for matching (the grid's crop to its known cells and a margin,
+        the distance transform, the nearest-wall lookup, wall cells and, once computed, the
+        features); the full canvas is not kept."""
+        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.nearest, self.distance]
         total = sum(int(a.nbytes) for a in arrays)
         if "features" in self.__dict__:
             xy, descriptors = self.features
@@ -197,7 +197,7 @@ class PreparedGrid:
         """ORB keypoints as metric points (K, 2) of this grid's frame, and descriptors (K, 32)."""
         if len(self.occupied_xy) == 0:
             return np.zeros((0, 2)), None
-        image = cv2.dilate(self.walls * 255, np.ones((3, 3), np.uint8))
+        image = cv2.dilate((self.crop == OCCUPIED).astype(np.uint8) * 255, np.ones((3, 3), np.uint8))
         image = cv2.GaussianBlur(image, (0, 0), 1.0)
         c = self.config
         orb = cv2.ORB.create(
