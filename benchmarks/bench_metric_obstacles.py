@@ -35,9 +35,11 @@ ROBOT_RADIUS = 0.3
 class WholeMap(GridPlanner):
     """The planner as it was: every level's mask made again from the whole map at each plan."""
 
-    def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.int64]) -> NDArray[np.bool_]:
         kind, radius, medial = key
-        squared = grid_search.clearance_squared(self._base(kind) & ~blocked)
+        free = self._base(kind)
+        free[blocked[:, 0], blocked[:, 1]] = False
+        squared = grid_search.clearance_squared(free)
         return grid_search.passable(squared, radius, self.grid_map.resolution, medial)
 
 
@@ -64,8 +66,8 @@ def main() -> None:
     args = arguments().parse_args()
     grid = load_grid_map(args.run / "maps" / "metric_grid")
     planners = {
-        "window": GridPlanner(grid, ROBOT_RADIUS, PlanningConfig()),
-        "whole map": WholeMap(grid, ROBOT_RADIUS, PlanningConfig()),
+        "window": GridPlanner(grid, ROBOT_RADIUS, PlanningConfig(goal_field=False)),
+        "whole map": WholeMap(grid, ROBOT_RADIUS, PlanningConfig(goal_field=False)),
     }
     window = planners["window"]
     points = grid.frame.to_world(np.argwhere(window.mask(window.attempts[0])))

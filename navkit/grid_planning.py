@@ -41,8 +41,15 @@ from navkit import grid_search
 from navkit.raster import GridFrame
 
 ClearanceAt = Callable[[NDArray[np.float64]], NDArray[np.float64]]  # (N, 2) points -> (N,) clearance
-# a cell search: (passable, start cell, goal cell, the mask's sight raster or None) -> (K, 2) cells or None
-Search = Callable[[NDArray[np.bool_], tuple[int, int], tuple[int, int], NDArray[np.uint8] | None], NDArray[np.int64] | None]
+# a cell search: (level, passable, start cell, goal cell, the mask's sight raster or None) -> (K, 2) cells or None
+Search = Callable[[int, NDArray[np.bool_], tuple[int, int], tuple[int, int], NDArray[np.uint8] | None], NDArray[np.int64] | None]
+
+
+def theta_star_search(
+    level: int, passable: NDArray[np.bool_], start: tuple[int, int], goal: tuple[int, int], sight: NDArray[np.uint8] | None
+) -> NDArray[np.int64] | None:
+    """``plan_path``'s default search: Lazy Theta* on every level."""
+    return grid_search.theta_star(passable, start, goal, sight)
 
 
 @dataclass(frozen=True)
@@ -68,7 +75,7 @@ def plan_path(
     hold_m: float = 0.0,
     horizon_m: float | None = None,
     sight: Callable[[int], NDArray[np.uint8] | None] | None = None,
-    search: Search = grid_search.theta_star,
+    search: Search = theta_star_search,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
@@ -84,8 +91,8 @@ def plan_path(
     passage's medial line; only its first ``horizon_m`` metres, if set). None (default): as found.
     sight: the i-th mask's ``grid_search.sight_raster``, for a caller that keeps it (None, or a
     callable that gives None: made for each search).
-    search: the cell search, ``(passable, start, goal, sight) -> cells or None`` (Lazy Theta*, or
-    ``grid_search.astar_smoothed``).
+    search: the cell search, ``(level, passable, start, goal, sight) -> cells or None`` (Lazy
+    Theta*; the metric baseline's A* and goal field).
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -98,7 +105,7 @@ def plan_path(
         goal = grid_search.nearest_free(passable, goal_cell, snap_cells)
         if start is None or goal is None:
             continue
-        cells = search(passable, start, goal, None if sight is None else sight(level))
+        cells = search(level, passable, start, goal, None if sight is None else sight(level))
         if cells is None:
             continue
         end_xy = goal_xy if exact_goal else frame.to_world(cells[-1:])[0]
@@ -169,7 +176,7 @@ def ease_path(
     eased = np.stack(
         [(col - frame.origin_cell[1]) * res + frame.origin[0], (row - frame.origin_cell[0]) * res + frame.origin[1]], 1
     )
-    eased[0], eased[-1] = dense[0], dense[-1]
+    eased[0], eased[-1] = points[0], points[-1]  # exactly (densify may round the last point)
     # thinned in cell units: a quarter cell's tolerance, chords sampled every quarter cell
     keep = np.zeros(len(row), np.bool_)
     _simplify_clear_kernel(row, col, squared, 0.25, prefer_m / res, 0.25, 0.0, keep)

@@ -864,17 +864,21 @@ def goal_field(free: ArrayLike, goal: ArrayLike) -> NDArray[np.float32]:
     return np.asarray(_field_kernel(grid, goal[0], goal[1]))
 
 
-def field_path(free: ArrayLike, field: NDArray[np.float32], start: ArrayLike, sight: NDArray[np.uint8]) -> CellPath | None:
-    """The path from ``start`` (row, col) to the goal of ``field`` (``goal_field`` of ``free``): the
-    field descended (a shortest 8-connected path), then the shortcut and vertex refinement that
-    ``theta_star`` ends with, on ``sight`` (``sight_raster(free)``). None if no way leads."""
+def field_path(
+    free: ArrayLike, field: NDArray[np.float32], start: ArrayLike, sight: NDArray[np.uint8] | None = None
+) -> CellPath | None:
+    """The path from ``start`` (row, col) to the goal of ``field``, descending it through the cells
+    of ``free`` (a shortest 8-connected path where ``field`` is ``goal_field(free)``; where ``free``
+    has lost cells since, e.g. to new obstacles, a way down the field round them, or None if it
+    meets a dead end), then the shortcut and vertex refinement that ``theta_star`` ends with, on
+    ``sight`` (``sight_raster(free)``; None: cell by cell on ``free``). None if no way leads."""
     grid, start = _as_grid(free), _cell(start)
     if not _is_free(grid, start):
         return None
     cells = _descend_kernel(grid, field, start[0], start[1])
     if cells.shape[0] == 0:
         return None
-    return _pulled(sight, cells)
+    return _pulled(grid.view(np.uint8) if sight is None else sight, cells)
 
 
 def _pulled(sight: NDArray[np.uint8], cells: NDArray[np.int64]) -> NDArray[np.int64]:

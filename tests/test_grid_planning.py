@@ -47,10 +47,13 @@ def test_the_baseline_and_the_oracle_plan_the_same_paths_as_before_the_extractio
     oracle used to drop the cell it snapped to and head straight for the next vertex, across the
     inflated zone; it now keeps that cell as the way into free space, the baseline's rule. The
     baseline's shortest paths, that is: without easing them off the walls (``keep_clear`` 0;
-    the eased ones are pinned against these below)."""
+    the eased ones are pinned against these below), with the search it had then (Lazy Theta*);
+    its default search now, A* string-pulled, gives paths within 1 % of their lengths."""
     context = SystemContext(robot=tiny.spec.robot, sensor=tiny.spec.sensor)
-    baseline = MetricGrid(MetricGridConfig(planning=PlanningConfig(keep_clear=0.0)), context)
+    baseline = MetricGrid(MetricGridConfig(planning=PlanningConfig(keep_clear=0.0, search="theta_star")), context)
     baseline._prepare_navigation(GridMap(reference["map_cells"], reference["map_origin"], 0.1))
+    default = MetricGrid(MetricGridConfig(planning=PlanningConfig(keep_clear=0.0)), context)
+    default._prepare_navigation(GridMap(reference["map_cells"], reference["map_origin"], 0.1))
     truth = GroundTruth(world=tiny.world, world_from_map=np.zeros(3))
     entry = get_system("oracle")
     oracle = entry.create(
@@ -58,6 +61,7 @@ def test_the_baseline_and_the_oracle_plan_the_same_paths_as_before_the_extractio
     )
     for i, (start, goal) in enumerate(zip(reference["starts"], reference["goals"], strict=True)):
         assert np.array_equal(baseline.plan(start, goal), reference[f"baseline_{i}"]), i
+        assert _length(default.plan(start, goal)) == pytest.approx(_length(reference[f"baseline_{i}"]), rel=0.01), i
         oracle.goal_world = goal
         path, old = oracle._plan(start), reference[f"oracle_{i}"]
         if i < len(tiny.trials):

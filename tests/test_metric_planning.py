@@ -159,7 +159,8 @@ def test_free_space_that_meets_only_at_a_wall_corner_is_not_joined():
 @pytest.mark.parametrize("seed", range(6))
 def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_would(seed):
     """Blocked cells (a shut door, a box) change every level's mask only near them: the masks the
-    planner remakes in their window equal a transform of the whole map with them as walls."""
+    planner remakes in their window equal a transform of the whole map with them as walls, also
+    when tiles made at an earlier plan are kept."""
     rng = np.random.default_rng(seed)
     cells = np.full((120, 160), FREE, np.uint8)
     cells[rng.random(cells.shape) < 0.02] = OCCUPIED  # speckle, and walls with doors of 6-11 cells
@@ -174,11 +175,14 @@ def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_woul
     blocked[tuple((centre + rng.integers(-6, 7, size=(12, 2))).T)] = True
     if seed % 2:
         blocked[tuple(rng.integers([0, 0], cells.shape, size=(3, 2)).T)] = True  # and far apart
+    more = blocked.copy()
+    more[tuple((centre + rng.integers(-3, 4, size=(4, 2))).T)] = True  # seen next: tiles far from them are kept
     for key in planner.attempts:
         kind, radius, medial = key
         free = (cells == FREE) if kind == "known" else (cells != OCCUPIED)
-        whole = grid_search.passable(grid_search.clearance_squared(free & ~blocked), radius, RES, medial)
-        assert np.array_equal(planner.with_blocked(key, blocked), whole), key
+        for cut in (blocked, more, blocked):
+            whole = grid_search.passable(grid_search.clearance_squared(free & ~cut), radius, RES, medial)
+            assert np.array_equal(planner.with_blocked(key, np.argwhere(cut)), whole), key
 
 
 def test_the_masks_kept_bit_packed_and_as_sight_rasters_are_the_eroded_free_space():
@@ -201,3 +205,23 @@ def test_the_masks_kept_bit_packed_and_as_sight_rasters_are_the_eroded_free_spac
     assert all(np.array_equal(planner.mask(key), expected[key]) for key in planner.attempts)
     planner.forget()
     assert planner.nbytes == before
+
+
+def test_a_goal_field_serves_the_plans_after_the_first_to_the_same_goal():
+    """With ``goal_field``: the first plan to a goal searches, the second makes the field rooted at
+    the goal and every later one descends it: paths the search's length within 1 %, the field
+    counted in the planner's bytes while the goal lasts, dropped by ``forget``."""
+    grid = two_rooms(8)
+    planner = GridPlanner(grid, RADIUS, PlanningConfig(goal_field=True))
+    searching = GridPlanner(grid, RADIUS, PlanningConfig(goal_field=False))
+    goal, none = np.array([6.5, 3.0]), np.zeros((0, 2))
+    starts = [np.array([1.0, 1.0]), np.array([2.0, 3.5]), np.array([3.5, 0.8]), np.array([1.2, 2.0])]
+    for k, start in enumerate(starts):
+        planned, expected = planner.plan(start, goal, none), searching.plan(start, goal, none)
+        assert planned is not None and expected is not None and planned.level == expected.level
+        length = float(np.hypot(*np.diff(planned.points, axis=0).T).sum())
+        assert length == pytest.approx(float(np.hypot(*np.diff(expected.points, axis=0).T).sum()), rel=0.01)
+        assert bool(planner._fields) == (k >= 1)
+    assert planner.nbytes == searching.nbytes + 4 * grid.cells.size * len(planner._fields)  # float32 a cell
+    planner.forget()
+    assert not planner._fields

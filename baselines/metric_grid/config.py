@@ -47,6 +47,13 @@ class PlanningConfig(BaseModel):
         "theta_star: Lazy Theta*, shortcut and refined. Chosen by measurement (benchmarks/bench_metric_search.py): "
         "paths within 0.15 % of Theta*'s on generated and real maps, found up to 2x faster on large ones",
     )
+    goal_field: bool = Field(
+        True,
+        description="from the second plan to a goal on, descend a field rooted at it (navkit.grid_search.goal_field: "
+        "one whole-map Dijkstra per goal, float32 a cell kept while the goal lasts) instead of searching; a level "
+        "with new obstacles in it is searched. Replans 4x faster on corridor_150m (benchmarks/bench_planners.py), "
+        "for 4 bytes a cell of memory: the baseline made as fast as it can be where NavTopo's advantage is claimed",
+    )
 
     inflation_margin: float = Field(
         0.1,

@@ -20,17 +20,21 @@ are (N, 2) metric in the map frame.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
 from navkit.grid_planning import PlannedPath, plan_path
+from navkit.grid_search import Cell, CellPath
 from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 
 from .config import PlanningConfig
 from .occupancy import GridMap
 
 CLEARANCE_CAP = 255  # squared cells
+BLOCKED_TILE = 32  # cells: new obstacles' masks are remade tile by tile
 SEARCHES = {"astar": grid_search.astar_smoothed, "theta_star": grid_search.theta_star}  # PlanningConfig.search
 
 
@@ -65,6 +69,12 @@ class GridPlanner:
             key: np.packbits(grid_search.passable(squared[key[0]], key[1], res, key[2]), axis=None) for key in self.attempts
         }
         self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}
+        # with ``goal_field``: the goal cell planned to last (on a static level), and the field rooted
+        # at it once a second plan asked for the same goal: (level, goal cell, field)
+        self._asked: dict[int, Cell] = {}  # level -> the goal cell its last search went to
+        self._fields: dict[int, tuple[Cell, NDArray[np.float32]]] = {}  # level -> (goal cell, field)
+        # with new obstacles: (level, tile) -> (the tile window's blocked cells, the mask made there)
+        self._tiles: dict[tuple[Any, ...], tuple[bytes, NDArray[np.bool_]]] = {}
 
     def mask(self, key: tuple[str, float, float | None]) -> NDArray[np.bool_]:
         """The eroded mask (H, W) of level ``key`` (made from what is kept: not stored as such)."""
@@ -76,6 +86,9 @@ class GridPlanner:
         """Drop what searches made (each level's line-of-sight raster): a trial's first plan makes
         what it needs, as NavTopo's does (the masks, eroded when the map is loaded, stay)."""
         self._sight.clear()
+        self._asked.clear()
+        self._fields.clear()
+        self._tiles.clear()
 
     def roomy_at(self, points: NDArray) -> NDArray[np.bool_]:
         """Points (N, 2, map frame) -> the known free space there leaves the first level's clearance
@@ -90,9 +103,11 @@ class GridPlanner:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the bit-packed masks, the clearance raster and the line-of-sight rasters of the
-        levels searched (the planner's derived state)."""
-        kept = [*self._packed.values(), self._clearance, *self._sight.values()]
+        """Bytes of the bit-packed masks, the clearance raster, the line-of-sight rasters of the
+        levels searched and the goal's fields if kept (the planner's derived state)."""
+        kept: list[NDArray[Any]] = [*self._packed.values(), self._clearance, *self._sight.values()]
+        kept += [field for _, field in self._fields.values()]
+        kept += [np.frombuffer(bits, np.uint8) for bits, _ in self._tiles.values()] + [made for _, made in self._tiles.values()]
         return sum(int(array.nbytes) for array in kept)
 
     def _base(self, kind: str, window: tuple[slice, slice] = (slice(None), slice(None))) -> NDArray[np.bool_]:
@@ -122,6 +137,19 @@ class GridPlanner:
                 self._sight[key] = grid_search.sight_raster(self.mask(key))
             return self._sight[key]
 
+        searched = SEARCHES[self.config.search]
+
+        def search(
+            level: int, passable: NDArray[np.bool_], start: Cell, goal: Cell, raster: NDArray[np.uint8] | None
+        ) -> CellPath | None:
+            if self.config.goal_field:
+                field = self._goal_field(level, goal)
+                if field is not None:  # down the map's field, round new obstacles if any
+                    found = grid_search.field_path(passable, field, start, raster)
+                    if found is not None or blocked is None:
+                        return found
+            return searched(passable, start, goal, raster)
+
         return plan_path(
             mask,
             frame,
@@ -134,36 +162,60 @@ class GridPlanner:
             hold_m=self.hold,
             horizon_m=self.config.keep_clear_horizon,
             sight=sight,
-            search=SEARCHES[self.config.search],
+            search=search,
         )
 
-    def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.bool_]) -> NDArray[np.bool_]:
-        """The eroded mask of level ``key`` with the ``blocked`` cells (H, W) made walls: the mask
+    def _goal_field(self, level: int, goal: Cell) -> NDArray[np.float32] | None:
+        """The field rooted at ``goal`` on ``level``'s mask as the map has it (no new obstacles): kept
+        from an earlier plan, or made now if the plan before this one asked for the same goal (a
+        first plan of a goal searches: most goals are planned to many times, a field costs a
+        whole-map Dijkstra); None otherwise."""
+        goal = (int(goal[0]), int(goal[1]))
+        if level in self._fields and self._fields[level][0] == goal:
+            return self._fields[level][1]
+        if self._asked.get(level) == goal:
+            self._fields[level] = (goal, grid_search.goal_field(self.mask(self.attempts[level]), goal))
+            return self._fields[level][1]
+        self._fields.pop(level, None)  # another goal: its field goes
+        self._asked[level] = goal
+        return None
+
+    def with_blocked(self, key: tuple[str, float, float | None], blocked: NDArray[np.int64]) -> NDArray[np.bool_]:
+        """The eroded mask of level ``key`` with the ``blocked`` cells ((K, 2) rows and columns on the
+        map, ``_blocked_cells``) made walls: the mask
         made again only round them. A blocked cell changes the mask no farther than the level's
         radius and three cells (its clearance, the medial axis's neighbours, the diagonal bridges),
-        so the window of the blocked cells grown by that much is made again, from the base free
-        space of the window grown by as much again (every cell pasted has its nearest wall inside,
-        or more room than the radius): the same mask as a whole-map transform, at the window's cost."""
-        kind, radius, medial = key
-        rows, cols = np.nonzero(blocked)
-        if not len(rows):
+        so round each ``BLOCKED_TILE``-cell tile holding blocked cells the window grown by that much
+        is made again, from the base free space of the window grown by as much again (every cell
+        pasted has its nearest wall inside, or more room than the radius): the same mask as a
+        whole-map transform, at the cost of the tiles' windows. A tile whose window holds the same
+        blocked cells as at the last plan is pasted as made then (remembered obstacles grow where
+        the robot is; the others stay as they were)."""
+        if not len(blocked):
             return self.mask(key)
-        height, width = blocked.shape
+        kind, radius, medial = key
+        height, width = self._shape
         grow = int(np.ceil(radius / self.grid_map.resolution)) + 3
-        paste = (
-            max(rows.min() - grow, 0),
-            min(rows.max() + grow + 1, height),
-            max(cols.min() - grow, 0),
-            min(cols.max() + grow + 1, width),
-        )
-        crop = (max(paste[0] - grow, 0), min(paste[1] + grow, height), max(paste[2] - grow, 0), min(paste[3] + grow, width))
-        window = (slice(crop[0], crop[1]), slice(crop[2], crop[3]))
-        free = self._base(kind, window) & ~blocked[window]
-        remade = grid_search.passable(grid_search.clearance_squared(free), radius, self.grid_map.resolution, medial)
-        out = self.mask(key).copy()
-        out[paste[0] : paste[1], paste[2] : paste[3]] = remade[
-            paste[0] - crop[0] : paste[1] - crop[0], paste[2] - crop[2] : paste[3] - crop[2]
-        ]
+        out = self.mask(key)
+        tiles: dict[tuple[Any, ...], tuple[bytes, NDArray[np.bool_]]] = {}
+        for tile_row, tile_col in np.unique(blocked // BLOCKED_TILE, axis=0):
+            r0, c0 = int(tile_row) * BLOCKED_TILE, int(tile_col) * BLOCKED_TILE
+            r1, c1 = r0 + BLOCKED_TILE, c0 + BLOCKED_TILE
+            paste = (max(r0 - grow, 0), min(r1 + grow, height), max(c0 - grow, 0), min(c1 + grow, width))
+            crop = (max(paste[0] - grow, 0), min(paste[1] + grow, height), max(paste[2] - grow, 0), min(paste[3] + grow, width))
+            window = (slice(crop[0], crop[1]), slice(crop[2], crop[3]))
+            inside_window = (blocked >= (crop[0], crop[2])).all(axis=1) & (blocked < (crop[1], crop[3])).all(axis=1)
+            local = np.zeros((crop[1] - crop[0], crop[3] - crop[2]), bool)
+            local[blocked[inside_window, 0] - crop[0], blocked[inside_window, 1] - crop[2]] = True
+            here = np.packbits(local, axis=None).tobytes()
+            made = self._tiles.get((key, r0, c0))
+            if made is None or made[0] != here:
+                free = self._base(kind, window) & ~local
+                remade = grid_search.passable(grid_search.clearance_squared(free), radius, self.grid_map.resolution, medial)
+                made = (here, remade[paste[0] - crop[0] : paste[1] - crop[0], paste[2] - crop[2] : paste[3] - crop[2]].copy())
+            tiles[(key, r0, c0)] = made
+            out[paste[0] : paste[1], paste[2] : paste[3]] = made[1]
+        self._tiles = {k: v for k, v in self._tiles.items() if k[0] != key} | tiles  # other levels' stay
         return out
 
     def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
@@ -174,7 +226,9 @@ class GridPlanner:
         kind, radius, medial = self.attempts[-1]
         free = self._base(kind)
         if len(obstacles):
-            free = free & ~self._blocked_cells(grid.frame, obstacles)
+            cells = self._blocked_cells(grid.frame, obstacles)
+            free = free.copy()
+            free[cells[:, 0], cells[:, 1]] = False
         lenient = grid_search.passable(grid_search.clearance_squared(free), radius, grid.resolution, medial)
         snap = int(np.ceil(self.config.snap_radius / grid.resolution))
         start, goal = np.asarray(start_xy, dtype=np.float64)[:2], np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -195,10 +249,8 @@ class GridPlanner:
             f"{len(self.attempts)} levels tried (free space, clearance: {levels}): {why}{blocked}"
         )
 
-    def _blocked_cells(self, frame: GridFrame, obstacles: NDArray) -> NDArray[np.bool_]:
-        """(H, W) the map's cells that hold one of the points (N, 2); points off the map are dropped."""
+    def _blocked_cells(self, frame: GridFrame, obstacles: NDArray) -> NDArray[np.int64]:
+        """(K, 2) the map's cells (row, col, each once) that hold one of the points (N, 2); points off
+        the map are dropped."""
         cells = frame.to_cell(obstacles)
-        on_map = inside(cells, self.grid_map.cells.shape)
-        blocked = np.zeros(self.grid_map.cells.shape, bool)
-        blocked[cells[on_map, 0], cells[on_map, 1]] = True
-        return blocked
+        return np.unique(cells[inside(cells, self.grid_map.cells.shape)], axis=0)
