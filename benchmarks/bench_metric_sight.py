@@ -42,7 +42,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     grid = load_grid_map(args.run / "maps" / "metric_grid")
-    planner = GridPlanner(grid, ROBOT_RADIUS, PlanningConfig())
+    planner = GridPlanner(grid, ROBOT_RADIUS, PlanningConfig(goal_field=False))  # each plan searches
     points = grid.frame.to_world(np.argwhere(planner.mask(planner.attempts[0])))
     rng = np.random.default_rng(args.seed)
     none = np.zeros((0, 2))
