@@ -53,11 +53,12 @@ from navkit.follower import PathFollower, ProgressCheck
 from navkit.geometry import transform_points
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.passages import PassageCheck, returns_near
+from navkit.raster import FREE, OCCUPIED
 from navkit.scan import obstacle_points
 from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
 
 from . import map_folder
-from .config import NOISY_ODOMETRY, PRECISE_ODOMETRY, SETTING_OVERRIDES, MetricGridConfig, for_context
+from .config import NOISY_ODOMETRY, PRECISE_ODOMETRY, SETTING_OVERRIDES, MetricGridConfig, PlanningConfig, for_context
 from .map_folder import MetricMapError, load_grid_map, save_map_folder
 from .obstacles import UnmappedObstacles
 from .occupancy import GridMap, OccupancyGrid
@@ -130,6 +131,15 @@ class MetricGrid:
         free = np.ones((16, 16), bool)
         grid_search.theta_star(grid_search.inflate_free(free, 0.2, 0.1), (8, 8), (10, 10))
         grid_search.nearest_free(free, (3, 3), 2)
+        # every kernel a plan compiles (search, goal field, descent, easing, thinning, masks round new
+        # obstacles): a room with a pillar, planned to one goal three times, then with an obstacle
+        cells = np.full((40, 40), FREE, np.uint8)
+        cells[[0, -1], :] = cells[:, [0, -1]] = OCCUPIED
+        cells[18:22, 18:22] = OCCUPIED
+        planner = GridPlanner(GridMap(cells, np.zeros(2), 0.1), 0.3, PlanningConfig())
+        start, goal = np.array([0.7, 0.7]), np.array([3.3, 3.3])
+        for obstacles in (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)), np.array([[2.0, 1.0]])):
+            planner.plan(start, goal, obstacles)
         angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)
         ring = np.stack([4 * np.cos(angles), 3 * np.sin(angles), np.full(360, 1.0)], 1).astype(np.float32)
         odometry = LidarOdometry(OdometryConfig(source="lidar", max_num_threads=1))
