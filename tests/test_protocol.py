@@ -252,13 +252,16 @@ def test_every_follower_stops_at_the_protocols_tolerance(tiny):
     assert oracle.follower.config.goal_tolerance == 0.2
 
 
+@pytest.mark.long
 def test_the_manifest_records_the_protocol_and_the_setting(tmp_path):
+    from test_scaleout import short_tiny
+
     out = tmp_path / "run"
     result = CliRunner().invoke(
         app,
         [
             "run",
-            "tiny",
+            str(short_tiny(tmp_path)),  # the oracle maps nothing: a 3 m route
             "--systems",
             "oracle",
             "--trials",

@@ -447,6 +447,7 @@ def test_a_second_ctrl_c_does_not_cut_the_cleanup_short(tmp_path):
     assert (tmp_path / "cleaned").exists(), "the second Ctrl-C cut the cleanup short"
 
 
+@pytest.mark.long
 def test_ctrl_c_during_trials_exits_130_and_the_run_resumes_with_nothing_lost(tmp_path):
     import json
     import subprocess
@@ -487,6 +488,7 @@ def one_line_error_text(stderr: str) -> str:
 # runs
 
 
+@pytest.mark.long
 def test_a_map_that_cannot_be_loaded_is_a_failed_stage_not_failed_trials(tmp_path):
     import json
     import shutil

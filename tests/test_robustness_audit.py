@@ -190,6 +190,7 @@ def test_a_run_folder_named_twice_is_counted_once(tmp_path):
     assert "| 5/6 (83 %)" in (run / "report" / "table.md").read_text()  # navtopo's six trials, not twelve
 
 
+@pytest.mark.long
 def test_a_copy_of_a_run_beside_it_is_counted_once_and_a_diverged_copy_refused(tmp_path):
     import json
     import shutil

@@ -24,6 +24,7 @@ def cli(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "runners.cli", *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.long
 def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     from test_scaleout import short_tiny
 

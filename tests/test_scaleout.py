@@ -81,6 +81,7 @@ def without_timing(record: dict) -> dict:
 # crash isolation
 
 
+@pytest.mark.long
 def test_trials_that_raise_crash_hang_or_hog_fail_alone_and_the_run_finishes(tmp_path):
     check_faulty_trials(tmp_path)
 
@@ -137,6 +138,7 @@ def test_a_mapping_job_that_kills_its_worker_fails_that_system_only(tmp_path):
     assert run.warnings == 0 and not (out / "summary.json").is_file()  # unfinished: --resume maps it again
 
 
+@pytest.mark.long
 def test_a_system_that_raises_while_mapping_is_a_failed_stage_in_one_line(tmp_path):
     """As a map that cannot be loaded: one line, exit 1, no trial of that system counted; the
     others' trials are kept, and --resume maps the failed system again (not the others)."""
@@ -189,15 +191,16 @@ def _assert_same_outcomes(a: Path, b: Path) -> None:
         assert mine == theirs, report.name
 
 
+@pytest.mark.long
 def test_one_worker_two_workers_and_ray_give_identical_trials_maps_and_trajectories(tmp_path):
     """`tiny` with the oracle and the metric baseline: --workers 1 and 2 (other chunks, other
     processes) and a private Ray instance give the same outcomes. Without Ray the test compares
     the local runs, then skips with the reason."""
-    one = _run_tiny(tmp_path / "w1", "--workers", "1")
-    _assert_same_outcomes(one, _run_tiny(tmp_path / "w2", "--workers", "2"))
+    one = _run_tiny(tmp_path / "w1", "--workers", "1", "--trials", "2")
+    _assert_same_outcomes(one, _run_tiny(tmp_path / "w2", "--workers", "2", "--trials", "2"))
     if not HAS_RAY:
         pytest.skip("Ray is not installed (pip install -e '.[ray]'): compared --workers 1 and 2 only")
-    _assert_same_outcomes(one, _run_tiny(tmp_path / "ray", "--executor", "ray", "--workers", "2"))
+    _assert_same_outcomes(one, _run_tiny(tmp_path / "ray", "--executor", "ray", "--workers", "2", "--trials", "2"))
 
 
 class RecordingExecutor(LocalExecutor):
@@ -240,6 +243,7 @@ def _span(log, seed: int, kind: str | None = None) -> tuple[float, float]:
     return min(t for e, t in times if e == "start"), max(t for e, t in times if e == "end")
 
 
+@pytest.mark.long
 def test_the_runs_of_one_command_overlap_on_one_executor_and_give_the_sequential_outcomes(tmp_path, monkeypatch):
     """`run tiny --seeds 1,2 --workers 2`: seed 2's jobs start while seed 1's still run, each run's
     navigation starts once its own maps are in, and the outcomes are those of the runs one after
@@ -259,6 +263,7 @@ def test_the_runs_of_one_command_overlap_on_one_executor_and_give_the_sequential
         assert json.loads((a / "summary.json").read_text()).keys() == {"oracle", "metric_grid"}
 
 
+@pytest.mark.long
 def test_ctrl_c_during_several_runs_exits_130_naming_each_unfinished_run_and_each_resumes(tmp_path):
     """Two seeds in flight together; Ctrl-C once a trial is recorded: every job ends, exit 130 in
     seconds, the one error line names the --resume of each unfinished folder, and each resumes with
@@ -385,6 +390,7 @@ def _kill_driver_mid_run(out: Path, *flags: str) -> list[dict]:
         ),
     ],
 )
+@pytest.mark.long
 def test_a_killed_driver_resumes_with_no_trial_lost_or_twice_and_no_mapping_redone(tmp_path, flags):
     out = tmp_path / "run"
     before = _kill_driver_mid_run(out, *flags)

@@ -25,6 +25,7 @@ def listing(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
 
 
+@pytest.mark.long
 def test_a_suite_runs_each_listed_run_into_its_folder_and_the_same_command_finishes_it(tmp_path):
     short_tiny(tmp_path)  # `tiny` with a 3 m mapping route, beside the suite: found by its relative path
     suite = write_suite(

@@ -63,6 +63,7 @@ def test_the_scaling_study_fits_the_growth_the_runs_were_written_with(sized_runs
     assert float(rows[("navtopo", "total")]["600m"]) == 12_000_000 and float(rows[("navtopo", "total")]["exponent"]) == 1.0
 
 
+@pytest.mark.long
 def test_a_sweep_report_shows_the_study_first(sized_runs, tmp_path):
     made = make_report(sized_runs, tmp_path / "report", study=write_scaling, study_title="Scaling")
     out = tmp_path / "report"
@@ -134,6 +135,7 @@ def test_wall_precision_counts_the_map_walls_near_a_gt_wall(tmp_path):
     assert wall_precision(Run.load(run), "metric_grid") is None
 
 
+@pytest.mark.long
 def test_the_drift_study_reports_each_level_and_draws_figure_1(tmp_path):
     folders = [write_crafted_run(tmp_path / level, setting=level) for level in ("precise", "noisy", "strong")]
     meta = yaml.safe_load((folders[2] / "maps" / "metric_grid" / "map.yaml").read_text())
