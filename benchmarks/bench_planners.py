@@ -35,19 +35,11 @@ from types import SimpleNamespace
 from typing import Any, cast
 
 import numpy as np
+from bench_navtopo_first_plan import stats as summary
 
 from baselines.metric_grid.system import MetricGrid, MetricGridConfig
 from navkit.types import Observation
 from navtopo.system import NavTopo, NavTopoConfig
-
-
-def summary(samples: list[float]) -> dict[str, float]:
-    values = np.asarray(samples, dtype=np.float64)
-    return {
-        "median": round(float(np.median(values)), 3),
-        "p95": round(float(np.percentile(values, 95)), 3),
-        "max": round(float(values.max()), 3),
-    }
 
 
 def pairs_of(positions: np.ndarray, count: int, min_distance: float, seed: int) -> list[tuple[int, int]]:
