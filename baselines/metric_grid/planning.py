@@ -69,8 +69,8 @@ class GridPlanner:
             key: np.packbits(grid_search.passable(squared[key[0]], key[1], res, key[2]), axis=None) for key in self.attempts
         }
         self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}
-        # with ``goal_field``: the goal cell planned to last (on a static level), and the field rooted
-        # at it once a second plan asked for the same goal: (level, goal cell, field)
+        # with ``goal_field``: per level, the goal cell its last search went to, and the field rooted
+        # at a goal once a second plan asked for it
         self._asked: dict[int, Cell] = {}  # level -> the goal cell its last search went to
         self._fields: dict[int, tuple[Cell, NDArray[np.float32]]] = {}  # level -> (goal cell, field)
         # with new obstacles: (level, tile) -> (the tile window's blocked cells, the mask made there)
@@ -83,8 +83,9 @@ class GridPlanner:
         return np.unpackbits(self._packed[key], count=self._shape[0] * self._shape[1]).reshape(self._shape).view(np.bool_)
 
     def forget(self) -> None:
-        """Drop what searches made (each level's line-of-sight raster): a trial's first plan makes
-        what it needs, as NavTopo's does (the masks, eroded when the map is loaded, stay)."""
+        """Drop what plans made (line-of-sight rasters, goal fields, tiles round new obstacles): a
+        trial's first plan makes what it needs, as NavTopo's does (the masks, eroded when the map is
+        loaded, stay)."""
         self._sight.clear()
         self._asked.clear()
         self._fields.clear()
