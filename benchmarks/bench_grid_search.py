@@ -5,8 +5,10 @@ maze (a perfect maze of corridors on a coarse lattice, scaled up), both planned 
 corner, the worst case for a search. The first call of each planner compiles or loads the
 numba cache and is not timed. Prints the median wall-clock and the median CPU time of the
 process over --repeats calls (the erosion by the robot radius: one call; ``passable``, a
-planner's medial level on a clearance raster made once: --repeats calls); on a shared machine
-(see the load average printed first) the CPU time is the steadier figure.
+planner's medial level on a clearance raster made once: --repeats calls; the exact squared
+distance transform ``clearance_squared`` against OpenCV's exact one, squared and rounded as it
+was before ``navkit`` had its own: --repeats calls); on a shared machine (see the load average
+printed first) the CPU time is the steadier figure. ``--size 200`` is a NavTopo union grid's size.
 
     python benchmarks/bench_grid_search.py --size 1000 3000 --repeats 5
 """
@@ -21,6 +23,7 @@ from collections.abc import Callable
 from functools import partial
 from typing import TypeVar
 
+import cv2
 import numpy as np
 
 from navkit import grid_search
@@ -85,6 +88,13 @@ def time_call(plan: Callable[[], Result], repeats: int) -> tuple[float, float, R
     return statistics.median(wall), statistics.median(cpu), result
 
 
+def opencv_squared(free: np.ndarray) -> np.ndarray:
+    """``clearance_squared`` as OpenCV's exact transform gives it (the outside non-free)."""
+    padded = np.pad(free, 1, mode="constant", constant_values=False).view(np.uint8)
+    distance = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    return np.rint(np.square(distance, dtype=np.float64))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, nargs="+", default=[1000, 3000])
@@ -118,6 +128,10 @@ def main() -> None:
             medial = partial(grid_search.passable, squared, 0.325, 0.05, 0.3)
             wall, cpu, _ = time_call(medial, args.repeats)
             print(f"{label:<18}{'':>7}{'passable':>12}{wall:>9.1f}{cpu:>9.1f}")
+            for name, transform in (("edt", grid_search.clearance_squared), ("edt opencv", opencv_squared)):
+                wall, cpu, squared = time_call(partial(transform, free), args.repeats)
+                print(f"{label:<18}{'':>7}{name:>12}{wall:>9.2f}{cpu:>9.2f}")
+            assert np.array_equal(grid_search.clearance_squared(free), opencv_squared(free))
 
 
 if __name__ == "__main__":

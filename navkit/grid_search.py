@@ -43,8 +43,8 @@ exists. ``benchmarks/bench_grid_search.py`` measures plan times on 1000^2 and 30
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
-import cv2
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
@@ -54,6 +54,8 @@ CellPath = NDArray[np.int64]
 
 SQRT2 = math.sqrt(2.0)
 SQRT1_2 = math.sqrt(0.5)
+FIELD_PER_CELL = 8.0  # a goal field's steps a cell (lengths kept to 1/16 cell), fewer on huge maps
+FIELD_UNREACHED = 65535  # a goal field's value where no way leads
 
 
 # --------------------------------------------------------------------------------------------
@@ -67,8 +69,8 @@ def inflate_free(free: ArrayLike, radius_m: float, resolution: float) -> NDArray
     free: (H, W) bool. Returns (H, W) bool: the free cells whose centre is at least ``radius_m``
     from the centre of every non-free cell; outside the array counts as non-free. This is
     ``scipy.ndimage.distance_transform_edt(free) * resolution >= radius_m`` (tested equal), but
-    computed with OpenCV's exact Euclidean transform, 5x faster than scipy's on a 3000 x 3000
-    grid. The wall surface lies about half a cell nearer than a non-free cell's centre: pass
+    computed with ``clearance_squared``'s compiled exact transform, faster than scipy's and
+    OpenCV's. The wall surface lies about half a cell nearer than a non-free cell's centre: pass
     ``radius + resolution / 2`` for a clearance that holds to the cell boundary.
     """
     free = np.asarray(free, dtype=bool)
@@ -79,16 +81,25 @@ def inflate_free(free: ArrayLike, radius_m: float, resolution: float) -> NDArray
     return clear_of(clearance_squared(free), radius_m, resolution)
 
 
-def clearance_squared(free: ArrayLike) -> NDArray[np.float64]:
-    """(H, W) squared distance, in cells, from each cell's centre to the nearest non-free cell's
-    centre (outside the array counts as non-free); 0 on non-free cells. An exact Euclidean
-    transform gives square roots of integers: their squares are recovered exactly, so a cell at
-    exactly a radius cannot flip with float32 rounding. ``clear_of`` thresholds it for a radius:
-    one transform serves every radius."""
+def clearance_squared(free: ArrayLike) -> NDArray[np.int32]:
+    """(H, W) int32 squared distance, in cells, from each cell's centre to the nearest non-free
+    cell's centre (outside the array counts as non-free); 0 on non-free cells. Exact, in integers
+    (``_squared_distance_kernel``: no cell at exactly a radius flips with rounding); ``clear_of``
+    thresholds it for a radius: one transform serves every radius."""
     free = np.asarray(free, dtype=bool)
-    padded = np.pad(free, 1, mode="constant", constant_values=False).view(np.uint8)
-    distance = cv2.distanceTransform(padded, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    return np.rint(np.square(distance, dtype=np.float64))
+    if free.ndim != 2:
+        raise ValueError(f"free must be a 2-D bool array, got shape {free.shape}")
+    return np.asarray(_squared_distance_kernel(np.ascontiguousarray(free), True))
+
+
+def distance_to(blocked: ArrayLike, resolution: float) -> NDArray[np.float32]:
+    """(H, W) float32 metres from each cell's centre to the nearest cell of ``blocked`` (bool, the
+    outside of the array not counted; with none in the array (H + W) cells): OpenCV's exact
+    transform's values (``distanceTransform`` ``DIST_MASK_PRECISE``), from the same kernel as
+    ``clearance_squared``."""
+    blocked = np.asarray(blocked, dtype=bool)
+    squared = _squared_distance_kernel(np.ascontiguousarray(~blocked), False)
+    return (np.sqrt(squared, dtype=np.float32) * np.float32(resolution)).astype(np.float32)
 
 
 def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np.bool_]:
@@ -237,6 +248,80 @@ def _allowed_moves(passable, r, c) -> int:
     if east:
         mask |= 1 << 5
     return mask
+
+
+@njit(cache=True)
+def _squared_distance_kernel(free, outside_blocked):
+    """(H, W) int32 the exact squared Euclidean distance transform of the non-free cells (with
+    ``outside_blocked`` the outside of the array counts as non-free; else a cell with no non-free
+    cell in the array gets (H + W)^2), in two separable passes (P. F. Felzenszwalb, D. P.
+    Huttenlocher, "Distance Transforms of Sampled Functions", Theory of Computing 8, 2012): along
+    each column the distance to the nearest non-free cell, then along each row the lower envelope of
+    the parabolas (c - q)^2 + column(q)^2, the outside's cells at q = -1 and q = W. Linear in the
+    cells, integer throughout; the same values as OpenCV's exact transform, 1.5x faster
+    (``benchmarks/bench_grid_search.py``)."""
+    height, width = free.shape
+    far = height + width  # farther than any cell of the array
+    column = _column_distances(free, 1 if outside_blocked else far + 1, far)
+    out = np.empty((height, width), np.int32)
+    sites = np.empty(width + 2, np.int64)  # the envelope's parabolas (their q) and where each starts
+    starts = np.empty(width + 3, np.float64)
+    heights = np.empty(width + 2, np.int64)  # f(q) = column(q)^2 of each q in -1 .. W
+    for r in range(height):
+        heights[0] = 0 if outside_blocked else np.int64(far) * far * 4  # a parabola that never wins
+        heights[width + 1] = heights[0]
+        for c in range(width):
+            heights[c + 1] = np.int64(column[r, c]) * column[r, c]
+        k = 0
+        sites[0] = -1
+        starts[0] = -np.inf
+        starts[1] = np.inf
+        for q in range(0, width + 1):
+            f_q = heights[q + 1] + q * q
+            while True:
+                v = sites[k]
+                s = (f_q - (heights[v + 1] + v * v)) / (2.0 * (q - v))
+                if s <= starts[k]:
+                    k -= 1
+                else:
+                    break
+            k += 1
+            sites[k] = q
+            starts[k] = s
+            starts[k + 1] = np.inf
+        k = 0
+        for c in range(width):
+            while starts[k + 1] < c:
+                k += 1
+            v = sites[k]
+            out[r, c] = min((c - v) * (c - v) + heights[v + 1], np.int64(far) * far)
+    return out
+
+
+@njit(cache=True)
+def _column_distances(free, edge, far):
+    """(H, W) int32 cells from each cell to the nearest non-free cell of its column (``edge`` from
+    the first or last row to the outside; at most ``far``)."""
+    height, width = free.shape
+    column = np.empty((height, width), np.int32)  # row by row, as the array lies in memory
+    for c in range(width):
+        column[0, c] = edge if free[0, c] else 0
+    for r in range(1, height):
+        for c in range(width):
+            column[r, c] = column[r - 1, c] + 1 if free[r, c] else 0
+    for c in range(width):
+        if column[height - 1, c] > edge:
+            column[height - 1, c] = edge
+    for r in range(height - 2, -1, -1):
+        for c in range(width):
+            below = column[r + 1, c] + 1
+            if below < column[r, c]:
+                column[r, c] = below
+    for r in range(height):
+        for c in range(width):
+            if column[r, c] > far:
+                column[r, c] = far
+    return column
 
 
 @njit(cache=True)
@@ -609,19 +694,20 @@ def _lazy_theta_kernel(clear, start_r, start_c, goal_r, goal_c):
 
 @njit(cache=True)
 def _field_kernel(free, goal_r, goal_c):
-    """Dijkstra from the goal over the 8-connected moves (no corner cutting): (H, W) float32 the
-    path length in cells from each cell to the goal, inf where no way leads. Its relaxation is
-    ``_astar_kernel``'s without the heuristic, written out: one compiled helper for both made
-    both 30-60 % slower (``benchmarks/bench_metric_search.py``)."""
+    """Dijkstra from the goal over the 8-connected moves (no corner cutting): (H, W) uint16 the
+    path length from each cell to the goal in steps of 1 / ``per_cell`` cell (``FIELD_UNREACHED``
+    where no way leads), and ``per_cell``: ``FIELD_PER_CELL``, fewer where the longest path would
+    not fit in 16 bits. Its relaxation is ``_astar_kernel``'s without the heuristic, written out:
+    one compiled helper for both made both 30-60 % slower (``benchmarks/bench_metric_search.py``)."""
     height, width = free.shape
     goal = goal_r * width + goal_c
     state, g, parent, pos, nodes, keys, ties = _open_search(height * width, goal, 0.0)
     size = 1
-    field = np.full(height * width, np.inf, np.float32)
+    longest = 0.0
     while size > 0:
         current, size = _pop(nodes, keys, ties, pos, size)
         state[current] = _CLOSED
-        field[current] = g[current]
+        longest = g[current]  # popped in order of length: the last is the longest
         r = current // width
         c = current - r * width
         moves = _allowed_moves(free, r, c)
@@ -647,18 +733,27 @@ def _field_kernel(free, goal_r, goal_c):
             keys[slot] = g_new
             ties[slot] = g_new
             _sift_up(nodes, keys, ties, pos, slot)
-    return field.reshape(height, width)
+    per_cell = min(FIELD_PER_CELL, (FIELD_UNREACHED - 1) / max(longest, 1.0))
+    field = np.full(height * width, FIELD_UNREACHED, np.uint16)
+    for cell in range(height * width):
+        if state[cell] == _CLOSED:
+            field[cell] = np.uint16(round(g[cell] * per_cell))
+    return field.reshape(height, width), per_cell
 
 
 @njit(cache=True)
-def _descend_kernel(free, field, start_r, start_c):
-    """(K, 2) cells from the start down ``field`` to its goal (each step to the 8-neighbour that
-    the Dijkstra reached it from: the least field value plus the step), or (0, 2) if no way."""
+def _descend_kernel(free, field, per_cell, start_r, start_c):
+    """(K, 2) cells from the start down ``field`` (``_field_kernel``'s) to its goal (each step to
+    the 8-neighbour that the Dijkstra reached it from: the least field value plus the step; with
+    lengths rounded to 1 / ``per_cell`` cell, one within that of it), or (0, 2) if no way. Every
+    step goes to a lower value, so the walk ends."""
     out = np.empty((256, 2), np.int64)
     count = 0
     r, c = start_r, start_c
-    if not field[r, c] < np.inf:
+    if field[r, c] == FIELD_UNREACHED:
         return out[:0]
+    straight = per_cell
+    diagonal = per_cell * SQRT2
     while True:
         if count == out.shape[0]:
             grown = np.empty((2 * count, 2), np.int64)
@@ -668,7 +763,7 @@ def _descend_kernel(free, field, start_r, start_c):
         out[count, 1] = c
         count += 1
         here = field[r, c]
-        if here == 0.0:
+        if here == 0:
             return out[:count]
         moves = _allowed_moves(free, r, c)
         best = np.inf
@@ -680,10 +775,10 @@ def _descend_kernel(free, field, start_r, start_c):
             nc = c + k % 3 - 1
             if not field[nr, nc] < here:
                 continue
-            value = field[nr, nc] + (SQRT2 if nr != r and nc != c else 1.0)
+            value = float(field[nr, nc]) + (diagonal if nr != r and nc != c else straight)
             if value < best:
                 best, best_r, best_c = value, nr, nc
-        if best_r < 0:  # cannot happen on a field of this mask: no way rather than a loop
+        if best_r < 0:  # a dead end (new obstacles round it): no way rather than a loop
             return out[:0]
         r, c = best_r, best_c
 
@@ -856,28 +951,44 @@ def theta_star(
     return cells
 
 
-def goal_field(free: ArrayLike, goal: ArrayLike) -> NDArray[np.float32]:
-    """(H, W) float32 the length in cells of the shortest 8-connected path (no corner cutting) from
-    each cell of ``free`` to ``goal`` (row, col); inf where none leads. Made once per goal, it
-    gives every later path to that goal by ``field_path``, from any start, without a search."""
+class GoalField(NamedTuple):
+    """The length of the shortest 8-connected path (no corner cutting) from each cell of a mask to
+    one goal cell: ``steps`` (H, W) uint16 in units of 1 / ``per_cell`` cell, ``FIELD_UNREACHED``
+    where no way leads (2 bytes a cell: a goal's field is kept while the goal lasts)."""
+
+    steps: NDArray[np.uint16]
+    per_cell: float
+
+    def cells(self) -> NDArray[np.float64]:
+        """(H, W) the lengths in cells (inf where no way leads)."""
+        return np.where(self.steps == FIELD_UNREACHED, np.inf, self.steps / self.per_cell)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.steps.nbytes)
+
+
+def goal_field(free: ArrayLike, goal: ArrayLike) -> GoalField:
+    """The ``GoalField`` of ``free`` rooted at ``goal`` (row, col). Made once per goal, it gives
+    every later path to that goal by ``field_path``, from any start, without a search."""
     grid, goal = _as_grid(free), _cell(goal)
     if not _is_free(grid, goal):
-        return np.full(grid.shape, np.inf, np.float32)
-    return np.asarray(_field_kernel(grid, goal[0], goal[1]))
+        return GoalField(np.full(grid.shape, FIELD_UNREACHED, np.uint16), FIELD_PER_CELL)
+    steps, per_cell = _field_kernel(grid, goal[0], goal[1])
+    return GoalField(np.asarray(steps), float(per_cell))
 
 
-def field_path(
-    free: ArrayLike, field: NDArray[np.float32], start: ArrayLike, sight: NDArray[np.uint8] | None = None
-) -> CellPath | None:
+def field_path(free: ArrayLike, field: GoalField, start: ArrayLike, sight: NDArray[np.uint8] | None = None) -> CellPath | None:
     """The path from ``start`` (row, col) to the goal of ``field``, descending it through the cells
-    of ``free`` (a shortest 8-connected path where ``field`` is ``goal_field(free)``; where ``free``
-    has lost cells since, e.g. to new obstacles, a way down the field round them, or None if it
-    meets a dead end), then the shortcut and vertex refinement that ``theta_star`` ends with, on
-    ``sight`` (``sight_raster(free)``; None: cell by cell on ``free``). None if no way leads."""
+    of ``free`` (a shortest 8-connected path where ``field`` is ``goal_field(free)``, to within
+    its rounding; where ``free`` has lost cells since, e.g. to new obstacles, a way down the field
+    round them, or None if it meets a dead end), then the shortcut and vertex refinement that
+    ``theta_star`` ends with, on ``sight`` (``sight_raster(free)``; None: cell by cell on
+    ``free``). None if no way leads."""
     grid, start = _as_grid(free), _cell(start)
     if not _is_free(grid, start):
         return None
-    cells = _descend_kernel(grid, field, start[0], start[1])
+    cells = _descend_kernel(grid, field.steps, field.per_cell, start[0], start[1])
     if cells.shape[0] == 0:
         return None
     return _pulled(grid.view(np.uint8) if sight is None else sight, cells)

@@ -92,6 +92,22 @@ def test_inflate_equals_scipy_edt_with_blocked_outside():
     assert open_grid[2:-2, 2:-2].all() and not open_grid[:2].any() and not open_grid[:, -2:].any()
 
 
+def test_the_squared_distance_transform_is_scipys_exact_one_in_integers():
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        height, width = rng.integers(1, 50, 2)
+        free = rng.random((height, width)) < rng.uniform(0.5, 1.0)
+        squared = gs.clearance_squared(free)
+        exact = np.square(distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1])  # the outside blocked
+        assert squared.dtype == np.int32 and np.array_equal(squared, np.rint(exact))
+        blocked = rng.random((height, width)) < rng.uniform(0.0, 0.2)
+        metres = gs.distance_to(blocked, RES)  # the outside not counted
+        if blocked.any():
+            assert metres == pytest.approx(distance_transform_edt(~blocked) * RES, abs=1e-5)
+        else:
+            assert (metres >= (height + width) * RES - 1e-5).all()
+
+
 # --- line of sight ---------------------------------------------------------------------------
 
 
@@ -326,8 +342,10 @@ def test_a_goal_field_is_dijkstra_from_the_goal_and_gives_paths_from_any_start(r
     index = np.arange(free.size).reshape(free.shape)
     exact = dijkstra(eight_connected_graph(free), directed=False, indices=index[goal]).reshape(free.shape)
     reached = np.isfinite(exact) & free
-    assert np.array_equal(np.isfinite(field), reached)
-    assert field[reached] == pytest.approx(exact[reached], rel=1e-6)  # float32
+    lengths = field.cells()
+    assert field.steps.dtype == np.uint16 and field.per_cell == gs.FIELD_PER_CELL
+    assert np.array_equal(np.isfinite(lengths), reached)
+    assert np.abs(lengths[reached] - exact[reached]).max() <= 0.5 / field.per_cell  # rounded to its steps
     sight = gs.sight_raster(free)
     for start in [(10, 20), (70, 10), (45, 80), (12, 101)]:
         path = gs.field_path(free, field, start, sight)
@@ -336,3 +354,20 @@ def test_a_goal_field_is_dijkstra_from_the_goal_and_gives_paths_from_any_start(r
         any_angle = gs.path_length(gs.theta_star(free, start, goal), 1.0)
         assert gs.path_length(path, 1.0) == pytest.approx(any_angle, rel=0.01)  # either may be the shorter
     assert gs.field_path(free, field, (6, 6), sight) is None  # the sealed pocket
+
+
+def test_a_goal_field_longer_than_its_16_bits_takes_coarser_steps_and_still_leads_to_the_goal():
+    free = np.zeros((41, 1200), bool)  # a serpentine: 20 lanes of 1200 cells, about 24,000 cells long
+    free[::2, :] = True
+    for lane in range(20):
+        free[2 * lane + 1, -1 if lane % 2 == 0 else 0] = True
+    goal = (40, 600)
+    field = gs.goal_field(free, goal)
+    index = np.arange(free.size).reshape(free.shape)
+    exact = dijkstra(eight_connected_graph(free), directed=False, indices=index[goal]).reshape(free.shape)
+    assert field.per_cell < 65534 / 20000  # coarser than 1/8 cell: 16 bits hold the longest path
+    reached = np.isfinite(exact)
+    assert np.abs(field.cells()[reached] - exact[reached]).max() <= 0.5 / field.per_cell
+    path = gs.field_path(free, field, (0, 0))
+    assert path is not None and tuple(path[0]) == (0, 0) and tuple(path[-1]) == goal
+    assert gs.path_length(path, 1.0) == pytest.approx(exact[0, 0], rel=0.01)

@@ -186,8 +186,9 @@ def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_woul
 
 
 def test_the_masks_kept_bit_packed_and_as_sight_rasters_are_the_eroded_free_space():
-    """The planner keeps each level's mask as bits, and a searched level's line-of-sight raster:
-    both give back the level's eroded free space exactly, and its bytes count what is kept."""
+    """The planner keeps the first level's line-of-sight raster, the fallbacks' masks as bits and a
+    searched fallback's line-of-sight raster: each gives back the level's eroded free space
+    exactly, and its bytes count what is kept."""
     grid = two_rooms(5)
     grid.cells[5:9, 60:70] = UNKNOWN
     planner = GridPlanner(grid, RADIUS, PlanningConfig())
@@ -197,10 +198,11 @@ def test_the_masks_kept_bit_packed_and_as_sight_rasters_are_the_eroded_free_spac
             planner.mask((kind, radius, medial)), grid_search.passable(grid_search.clearance_squared(free), radius, RES, medial)
         )
     before = planner.nbytes
-    assert before == sum((grid.cells.size + 7) // 8 for _ in planner.attempts) + grid.cells.size  # bits, and the clearance bytes
+    # the fallbacks' bits, the first level's line-of-sight bytes, the clearance bytes
+    assert before == sum((grid.cells.size + 7) // 8 for _ in planner.attempts[1:]) + 2 * grid.cells.size
     expected = {key: planner.mask(key) for key in planner.attempts}
     assert planner.plan(np.array([2.0, 1.0]), np.array([6.0, 3.0]), np.zeros((0, 2))) is not None  # the medial level
-    searched = len(planner._sight)
+    searched = len(planner._sight) - 1
     assert searched >= 1 and planner.nbytes == before + searched * grid.cells.size
     assert all(np.array_equal(planner.mask(key), expected[key]) for key in planner.attempts)
     planner.forget()
@@ -222,6 +224,6 @@ def test_a_goal_field_serves_the_plans_after_the_first_to_the_same_goal():
         length = float(np.hypot(*np.diff(planned.points, axis=0).T).sum())
         assert length == pytest.approx(float(np.hypot(*np.diff(expected.points, axis=0).T).sum()), rel=0.01)
         assert bool(planner._fields) == (k >= 1)
-    assert planner.nbytes == searching.nbytes + 4 * grid.cells.size * len(planner._fields)  # float32 a cell
+    assert planner.nbytes == searching.nbytes + 2 * grid.cells.size * len(planner._fields)  # 16 bits a cell
     planner.forget()
     assert not planner._fields

@@ -50,9 +50,10 @@ class PlanningConfig(BaseModel):
     goal_field: bool = Field(
         True,
         description="from the second plan to a goal on, descend a field rooted at it (navkit.grid_search.goal_field: "
-        "one whole-map Dijkstra per goal, float32 a cell kept while the goal lasts) instead of searching; a level "
-        "with new obstacles in it is searched. Replans 4x faster on corridor_150m (benchmarks/bench_planners.py), "
-        "for 4 bytes a cell of memory: the baseline made as fast as it can be where NavTopo's advantage is claimed",
+        "one whole-map Dijkstra per goal, 16 bits a cell kept while the goal lasts) instead of searching, round new "
+        "obstacles through the remade mask, searched where that meets a dead end. Replans 4x faster on corridor_150m "
+        "(benchmarks/bench_planners.py), for 2 bytes a cell of memory: the baseline made as fast as it can be where "
+        "NavTopo's advantage is claimed",
     )
 
     inflation_margin: float = Field(

@@ -62,17 +62,22 @@ class GridPlanner:
         self.wide = wide
         self.prefer = wide + config.keep_clear if config.keep_clear > 0 else 0.0  # 0: no easing
         self.hold = tight  # points on a narrow passage's medial line stay there
-        # every level's mask bit-packed (an eighth of a byte a cell); a level searched keeps its
-        # line-of-sight raster (made on its first search), whose nonzero cells are the mask
+        # the first level's line-of-sight raster (the Chebyshev clearance line of sight leaps on),
+        # whose nonzero cells are its mask: made with the masks, as most plans search that level
+        # only; the fallbacks' masks bit-packed (an eighth of a byte a cell), each keeping its
+        # line-of-sight raster once searched, until ``forget``
         self._shape = grid_map.cells.shape
         self._packed: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {
-            key: np.packbits(grid_search.passable(squared[key[0]], key[1], res, key[2]), axis=None) for key in self.attempts
+            key: np.packbits(grid_search.passable(squared[key[0]], key[1], res, key[2]), axis=None) for key in self.attempts[1:]
         }
-        self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {}
+        first = self.attempts[0]
+        self._sight: dict[tuple[str, float, float | None], NDArray[np.uint8]] = {
+            first: grid_search.sight_raster(grid_search.passable(squared[first[0]], first[1], res, first[2]))
+        }
         # with ``goal_field``: per level, the goal cell its last search went to, and the field rooted
         # at a goal once a second plan asked for it
         self._asked: dict[int, Cell] = {}  # level -> the goal cell its last search went to
-        self._fields: dict[int, tuple[Cell, NDArray[np.float32]]] = {}  # level -> (goal cell, field)
+        self._fields: dict[int, tuple[Cell, grid_search.GoalField]] = {}  # level -> (goal cell, field)
         # with new obstacles: (level, tile) -> (the tile window's blocked cells, the mask made there)
         self._tiles: dict[tuple[Any, ...], tuple[bytes, NDArray[np.bool_]]] = {}
 
@@ -83,10 +88,11 @@ class GridPlanner:
         return np.unpackbits(self._packed[key], count=self._shape[0] * self._shape[1]).reshape(self._shape).view(np.bool_)
 
     def forget(self) -> None:
-        """Drop what plans made (line-of-sight rasters, goal fields, tiles round new obstacles): a
-        trial's first plan makes what it needs, as NavTopo's does (the masks, eroded when the map is
-        loaded, stay)."""
-        self._sight.clear()
+        """Drop what plans made (the fallbacks' line-of-sight rasters, goal fields, tiles round new
+        obstacles): a trial's first plan makes what it needs, as NavTopo's does (what was made when
+        the map was loaded stays: the masks, the first level's line-of-sight raster)."""
+        first = self.attempts[0]
+        self._sight = {first: self._sight[first]}
         self._asked.clear()
         self._fields.clear()
         self._tiles.clear()
@@ -107,9 +113,8 @@ class GridPlanner:
         """Bytes of the bit-packed masks, the clearance raster, the line-of-sight rasters of the
         levels searched and the goal's fields if kept (the planner's derived state)."""
         kept: list[NDArray[Any]] = [*self._packed.values(), self._clearance, *self._sight.values()]
-        kept += [field for _, field in self._fields.values()]
         kept += [np.frombuffer(bits, np.uint8) for bits, _ in self._tiles.values()] + [made for _, made in self._tiles.values()]
-        return sum(int(array.nbytes) for array in kept)
+        return sum(int(array.nbytes) for array in kept) + sum(field.nbytes for _, field in self._fields.values())
 
     def _base(self, kind: str, window: tuple[slice, slice] = (slice(None), slice(None))) -> NDArray[np.bool_]:
         """The free space a level erodes (known free cells, or all not occupied), in ``window``."""
@@ -166,7 +171,7 @@ class GridPlanner:
             search=search,
         )
 
-    def _goal_field(self, level: int, goal: Cell) -> NDArray[np.float32] | None:
+    def _goal_field(self, level: int, goal: Cell) -> grid_search.GoalField | None:
         """The field rooted at ``goal`` on ``level``'s mask as the map has it (no new obstacles): kept
         from an earlier plan, or made now if the plan before this one asked for the same goal (a
         first plan of a goal searches: most goals are planned to many times, a field costs a
