@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -330,10 +331,16 @@ class CroppedGrid:
         grid[self.row0 : self.row0 + h, self.col0 : self.col0 + w] = self.cells
         return grid
 
+    @cached_property
+    def wall_axis(self) -> tuple[float, float]:
+        """``wall_direction`` of the cells (the grid is never changed once made): a union grid turns
+        to its members' walls, and a loaded map has each location's made as it loads."""
+        return wall_direction(self.cells)
+
     @property
     def nbytes(self) -> int:
-        """Bytes of the cells plus the three integers."""
-        return int(self.cells.nbytes) + 3 * 8
+        """Bytes of the cells plus the three integers and the wall direction's two floats."""
+        return int(self.cells.nbytes) + 5 * 8
 
 
 def encode_png(grid: Grid) -> bytes:

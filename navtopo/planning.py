@@ -45,7 +45,6 @@ from navtopo.local_grid import (
     GridConfig,
     grid_from_points,
     mean_direction,
-    wall_direction,
     warp_window,
     warped_bounds,
 )
@@ -272,10 +271,7 @@ class UnionGrid:
     def wall_distance(self) -> NDArray[np.float32]:
         """Metres from each cell centre to the nearest occupied cell centre."""
         if self._wall_distance is None:
-            not_wall = (self.cells != OCCUPIED).astype(np.uint8)
-            self._wall_distance = cv2.distanceTransform(not_wall, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * np.float32(
-                self.frame.resolution
-            )
+            self._wall_distance = grid_search.distance_to(self.cells == OCCUPIED, self.frame.resolution)
         return self._wall_distance
 
     def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
@@ -342,7 +338,7 @@ def union_yaw(placed: list[tuple[CroppedGrid, NDArray[np.float64]]]) -> float:
     (``local_grid.wall_direction``): a door or a corridor then crosses whole rows or columns of
     cells, where at a slant its jambs' cells stand in a staircase and the planner, which moves from
     cell to cell without cutting corners, finds it a cell or so narrower."""
-    directions = [wall_direction(grid.cells) for grid, _ in placed]
+    directions = [grid.wall_axis for grid, _ in placed]
     angles = [angle + float(pose[2]) for (angle, _), (_, pose) in zip(directions, placed, strict=True)]
     return mean_direction(angles, [weight for _, weight in directions])
 

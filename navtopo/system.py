@@ -163,6 +163,8 @@ class NavTopo:
             )
         system = cls(config, graph, mapping=False, context=context)
         system.navigator.map_poses = relaxed_poses(graph)  # for map-frame goals: part of loading
+        for vertex in graph.vertices:  # each location's wall direction, which union grids turn to
+            vertex.grid.wall_axis  # noqa: B018 - made here, as loading
         system.navigator.startup.map_poses = system.navigator.map_poses
         return system
 
