@@ -160,7 +160,8 @@ def test_free_space_that_meets_only_at_a_wall_corner_is_not_joined():
 def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_would(seed):
     """Blocked cells (a shut door, a box) change every level's mask only near them: the masks the
     planner remakes in their window equal a transform of the whole map with them as walls, also
-    when tiles made at an earlier plan are kept."""
+    when tiles made at an earlier plan are kept; the line-of-sight raster patched round them is
+    that mask where nonzero, and never above its Chebyshev clearance (what line of sight leaps on)."""
     rng = np.random.default_rng(seed)
     cells = np.full((120, 160), FREE, np.uint8)
     cells[rng.random(cells.shape) < 0.02] = OCCUPIED  # speckle, and walls with doors of 6-11 cells
@@ -183,6 +184,10 @@ def test_new_obstacles_remake_the_masks_round_them_as_a_whole_map_transform_woul
         for cut in (blocked, more, blocked):
             whole = grid_search.passable(grid_search.clearance_squared(free & ~cut), radius, RES, medial)
             assert np.array_equal(planner.with_blocked(key, np.argwhere(cut)), whole), key
+            if key not in planner._sight:
+                planner._sight[key] = grid_search.sight_raster(planner.mask(key))
+            patched = planner.sight_with_blocked(key, whole, np.argwhere(cut))
+            assert np.array_equal(patched > 0, whole) and (patched <= grid_search.sight_raster(whole)).all()
 
 
 def test_the_masks_kept_bit_packed_and_as_sight_rasters_are_the_eroded_free_space():

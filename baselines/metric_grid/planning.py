@@ -35,6 +35,7 @@ from .occupancy import GridMap
 
 CLEARANCE_CAP = 255  # squared cells
 BLOCKED_TILE = 32  # cells: new obstacles' masks are remade tile by tile
+SIGHT_REACH = 16  # cells: with new obstacles, line of sight leaps at most this far from ones remade
 SEARCHES = {"astar": grid_search.astar_smoothed, "theta_star": grid_search.theta_star}  # PlanningConfig.search
 
 
@@ -128,6 +129,8 @@ class GridPlanner:
         snap = int(np.ceil(self.config.snap_radius / grid.resolution))
         frame = grid.frame
         blocked = self._blocked_cells(frame, obstacles) if len(obstacles) else None
+        if blocked is not None and not len(blocked):
+            blocked = None  # every point off the map
 
         def mask(level: int) -> NDArray[np.bool_]:
             key = self.attempts[level]
@@ -135,13 +138,12 @@ class GridPlanner:
 
         def sight(level: int) -> NDArray[np.uint8] | None:
             # a static mask's line-of-sight raster is kept once made (remade for every search it
-            # was most of a plan's search time on a large map); a mask with obstacles is new each time
-            if blocked is not None:
-                return None
+            # was most of a plan's search time on a large map); a mask with obstacles is new each
+            # time: a search patches the static one round them (``sight_with_blocked``)
             key = self.attempts[level]
             if key not in self._sight:
                 self._sight[key] = grid_search.sight_raster(self.mask(key))
-            return self._sight[key]
+            return self._sight[key] if blocked is None else None
 
         searched = SEARCHES[self.config.search]
 
@@ -151,9 +153,12 @@ class GridPlanner:
             if self.config.goal_field:
                 field = self._goal_field(level, goal)
                 if field is not None:  # down the map's field, round new obstacles if any
+                    # (pulled cell by cell where they are: cheaper than patching the raster)
                     found = grid_search.field_path(passable, field, start, raster)
                     if found is not None or blocked is None:
                         return found
+            if blocked is not None:
+                raster = self.sight_with_blocked(self.attempts[level], passable, blocked)
             return searched(passable, start, goal, raster)
 
         return plan_path(
@@ -204,10 +209,7 @@ class GridPlanner:
         grow = int(np.ceil(radius / self.grid_map.resolution)) + 3
         out = self.mask(key)
         tiles: dict[tuple[Any, ...], tuple[bytes, NDArray[np.bool_]]] = {}
-        for tile_row, tile_col in np.unique(blocked // BLOCKED_TILE, axis=0):
-            r0, c0 = int(tile_row) * BLOCKED_TILE, int(tile_col) * BLOCKED_TILE
-            r1, c1 = r0 + BLOCKED_TILE, c0 + BLOCKED_TILE
-            paste = (max(r0 - grow, 0), min(r1 + grow, height), max(c0 - grow, 0), min(c1 + grow, width))
+        for r0, c0, paste in self._tile_windows(key, blocked):
             crop = (max(paste[0] - grow, 0), min(paste[1] + grow, height), max(paste[2] - grow, 0), min(paste[3] + grow, width))
             window = (slice(crop[0], crop[1]), slice(crop[2], crop[3]))
             inside_window = (blocked >= (crop[0], crop[2])).all(axis=1) & (blocked < (crop[1], crop[3])).all(axis=1)
@@ -222,6 +224,50 @@ class GridPlanner:
             tiles[(key, r0, c0)] = made
             out[paste[0] : paste[1], paste[2] : paste[3]] = made[1]
         self._tiles = {k: v for k, v in self._tiles.items() if k[0] != key} | tiles  # other levels' stay
+        return out
+
+    def _tile_windows(
+        self, key: tuple[str, float, float | None], blocked: NDArray[np.int64]
+    ) -> list[tuple[int, int, tuple[int, int, int, int]]]:
+        """(tile row, tile column, paste window (r0, r1, c0, c1)) of each ``BLOCKED_TILE``-cell tile
+        holding ``blocked`` cells: the tile grown by as far as they change level ``key``'s mask."""
+        height, width = self._shape
+        grow = int(np.ceil(key[1] / self.grid_map.resolution)) + 3
+        out = []
+        for tile_row, tile_col in np.unique(blocked // BLOCKED_TILE, axis=0):
+            r0, c0 = int(tile_row) * BLOCKED_TILE, int(tile_col) * BLOCKED_TILE
+            paste = (
+                max(r0 - grow, 0),
+                min(r0 + BLOCKED_TILE + grow, height),
+                max(c0 - grow, 0),
+                min(c0 + BLOCKED_TILE + grow, width),
+            )
+            out.append((r0, c0, paste))
+        return out
+
+    def sight_with_blocked(
+        self, key: tuple[str, float, float | None], mask: NDArray[np.bool_], blocked: NDArray[np.int64]
+    ) -> NDArray[np.uint8]:
+        """A line-of-sight raster of ``mask`` (``with_blocked(key, blocked)``) made from the static
+        level's (``_sight[key]``) without a pass over the whole map: its nonzero cells are the mask,
+        and each cell's value is at most its Chebyshev clearance, all that line of sight's leaps
+        need (``grid_search._clear_line_of_sight``). Away from the remade windows the obstacles are
+        more than ``SIGHT_REACH`` cells off, so the static value capped at that holds; round each
+        window, grown by as much, the clearance of the new mask there (the window's edge counted as
+        blocked: lower, never higher)."""
+        height, width = self._shape
+        out = np.minimum(self._sight[key], SIGHT_REACH)
+        made = np.zeros(self._shape, bool)  # cells a window's clearance was written to
+        for _, _, paste in self._tile_windows(key, blocked):
+            window = (
+                slice(max(paste[0] - SIGHT_REACH, 0), min(paste[1] + SIGHT_REACH, height)),
+                slice(max(paste[2] - SIGHT_REACH, 0), min(paste[3] + SIGHT_REACH, width)),
+            )
+            # the new mask's own clearance there (it may have cells the static one lacks: a bridge
+            # round a diagonal touch the obstacles made), the least where windows overlap
+            here = grid_search.sight_raster(mask[window])
+            out[window] = np.where(made[window], np.minimum(out[window], here), here)
+            made[window] = True
         return out
 
     def why_no_path(self, start_xy: ArrayLike, goal_xy: ArrayLike, obstacles: NDArray) -> str:
