@@ -1,6 +1,6 @@
 """The metric baseline's search candidates on a map a run saved (issue 29): Lazy Theta*, 8-connected
-A* string-pulled from both ends and refined (``astar_smoothed``, the baseline's default), and a
-field rooted at the goal (``goal_field``: Dijkstra over the whole mask once per goal; then every
+A* string-pulled from both ends and refined (``astar_smoothed``), jump point search pulled the same
+way (``jps_smoothed``), and a field rooted at the goal (``goal_field``: Dijkstra over the whole mask once per goal; then every
 plan to that goal descends it, ``field_path``). Seeded random start-goal pairs among the free cells
 of the first level (the robot radius, half a cell and the margin), one process, CPU time, each
 mask's line-of-sight raster made once. Prints each candidate's total path length against
@@ -45,19 +45,22 @@ def measure(run: Path, pairs: int, seed: int) -> None:
     gs.field_path(mask, gs.goal_field(mask, free[1]), free[0], sight)  # compile
     gs.theta_star(mask, free[0], free[1], sight)
     gs.astar_smoothed(mask, free[0], free[1], sight)
-    lengths: dict[str, list[float]] = {"theta_star": [], "astar": [], "field": []}
-    times: dict[str, list[float]] = {"theta_star": [], "astar": [], "field build": [], "field": []}
+    gs.jps_smoothed(mask, free[0], free[1], sight)
+    lengths: dict[str, list[float]] = {"theta_star": [], "astar": [], "jps": [], "field": []}
+    times: dict[str, list[float]] = {"theta_star": [], "astar": [], "jps": [], "field build": [], "field": []}
     for _ in range(pairs):
         start, goal = free[rng.integers(len(free), size=2)]
         theta, ms_theta = timed(gs.theta_star, mask, start, goal, sight)
         if theta is None:
             continue
         astar, ms_astar = timed(gs.astar_smoothed, mask, start, goal, sight)
+        jps, ms_jps = timed(gs.jps_smoothed, mask, start, goal, sight)
         field, ms_build = timed(gs.goal_field, mask, goal)
         descended, ms_field = timed(gs.field_path, mask, field, start, sight)
-        for name, path in (("theta_star", theta), ("astar", astar), ("field", descended)):
+        for name, path in (("theta_star", theta), ("astar", astar), ("jps", jps), ("field", descended)):
             lengths[name].append(gs.path_length(path, grid.resolution))
-        for name, ms in (("theta_star", ms_theta), ("astar", ms_astar), ("field build", ms_build), ("field", ms_field)):
+        timings = (("theta_star", ms_theta), ("astar", ms_astar), ("jps", ms_jps), ("field build", ms_build), ("field", ms_field))
+        for name, ms in timings:
             times[name].append(ms)
     theta_m = np.asarray(lengths["theta_star"])
     print(f"{run}: {len(theta_m)} pairs, mask {mask.shape[0]} x {mask.shape[1]} cells")

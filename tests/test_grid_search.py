@@ -206,6 +206,35 @@ def eight_connected_graph(free: np.ndarray) -> coo_matrix:
     return coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(free.size, free.size))
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_jump_point_search_finds_a_shortest_8_connected_path_that_never_cuts_a_corner(seed):
+    """On random grids (sparse to cluttered), from random starts: the same length as Dijkstra's
+    over the 8-connected moves, every step one of those moves, None exactly where none leads."""
+    rng = np.random.default_rng(seed)
+    for _ in range(150):
+        height, width = rng.integers(2, 40, 2)
+        free = rng.random((height, width)) < rng.uniform(0.55, 1.0)
+        cells = np.argwhere(free)
+        if len(cells) < 2:
+            continue
+        start, goal = (tuple(int(v) for v in cell) for cell in cells[rng.choice(len(cells), 2, replace=False)])
+        index = np.arange(free.size).reshape(free.shape)
+        exact = dijkstra(eight_connected_graph(free), directed=False, indices=index[start])[index[goal]]
+        path = gs._jps_kernel(free, *start, *goal)
+        if not np.isfinite(exact):
+            assert len(path) == 0
+            continue
+        assert tuple(path[0]) == start and tuple(path[-1]) == goal
+        assert gs.path_length(path, 1.0) == pytest.approx(exact, abs=1e-9)
+        steps = np.diff(path, axis=0)
+        assert (np.abs(steps).max(axis=1) == 1).all()
+        for (r, c), (dr, dc) in zip(path[:-1], steps, strict=True):
+            assert free[r + dr, c + dc] and (dr == 0 or dc == 0 or (free[r + dr, c] and free[r, c + dc]))
+    smoothed = gs.jps_smoothed(free, start, goal)  # the last grid: pulled to any angle, still clear
+    if smoothed is not None:
+        assert all(gs.line_of_sight(free, a, b) for a, b in zip(smoothed[:-1], smoothed[1:], strict=True))
+
+
 def test_astar_is_8_connected_optimal_and_not_shorter_than_theta_star(room):
     free = gs.inflate_free(room, RADIUS, RES)[::2, ::2]  # 80 x 120: small enough for Dijkstra
     start, goal = (10, 20), (12, 100)

@@ -41,7 +41,7 @@ class PlanningConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    search: Literal["astar", "theta_star"] = Field(
+    search: Literal["astar", "jps", "theta_star"] = Field(
         "astar",
         description="astar: 8-connected A* string-pulled from both ends and refined (navkit.grid_search.astar_smoothed); "
         "theta_star: Lazy Theta*, shortcut and refined. Chosen by measurement (benchmarks/bench_metric_search.py): "

@@ -62,7 +62,7 @@ from .config import NOISY_ODOMETRY, PRECISE_ODOMETRY, SETTING_OVERRIDES, MetricG
 from .map_folder import MetricMapError, load_grid_map, save_map_folder
 from .obstacles import UnmappedObstacles
 from .occupancy import GridMap, OccupancyGrid
-from .planning import GridPlanner
+from .planning import SEARCHES, GridPlanner
 from .pose_graph import PoseGraph
 from .scan2d import keyframe_scan, voxel_filter_2d
 from .tracking import PoseTracker
@@ -140,6 +140,8 @@ class MetricGrid:
         start, goal = np.array([0.7, 0.7]), np.array([3.3, 3.3])
         for obstacles in (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 2)), np.array([[2.0, 1.0]])):
             planner.plan(start, goal, obstacles)
+        for search in SEARCHES.values():  # whichever ``planning.search`` a run's config names
+            search(planner.mask(planner.attempts[0]), (7, 7), (33, 33))
         angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)
         ring = np.stack([4 * np.cos(angles), 3 * np.sin(angles), np.full(360, 1.0)], 1).astype(np.float32)
         odometry = LidarOdometry(OdometryConfig(source="lidar", max_num_threads=1))
