@@ -92,14 +92,12 @@ def clearance_squared(free: ArrayLike) -> NDArray[np.int32]:
     return np.asarray(_squared_distance_kernel(np.ascontiguousarray(free), True))
 
 
-def distance_to(blocked: ArrayLike, resolution: float) -> NDArray[np.float32]:
-    """(H, W) float32 metres from each cell's centre to the nearest cell of ``blocked`` (bool, the
-    outside of the array not counted; with none in the array (H + W) cells): OpenCV's exact
-    transform's values (``distanceTransform`` ``DIST_MASK_PRECISE``), from the same kernel as
-    ``clearance_squared``."""
+def squared_distance_to(blocked: ArrayLike) -> NDArray[np.int32]:
+    """(H, W) int32 squared distance in cells from each cell's centre to the nearest cell of
+    ``blocked`` (bool; the outside of the array not counted; with none in the array (H + W)^2),
+    exact: the kernel of ``clearance_squared``."""
     blocked = np.asarray(blocked, dtype=bool)
-    squared = _squared_distance_kernel(np.ascontiguousarray(~blocked), False)
-    return (np.sqrt(squared, dtype=np.float32) * np.float32(resolution)).astype(np.float32)
+    return np.asarray(_squared_distance_kernel(np.ascontiguousarray(~blocked), False))
 
 
 def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np.bool_]:

@@ -184,7 +184,7 @@ class UnionGrid:
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
     _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
     _parts: dict[tuple[str, float, bool], NDArray[np.integer]] = field(default_factory=dict)
-    _wall_distance: NDArray[np.float32] | None = None
+    _wall_squared: NDArray[np.uint8] | None = None
 
     def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
         """Points (N, 2+) of the location's frame -> cells (N, 2) [row, col] (no bounds check)."""
@@ -268,11 +268,23 @@ class UnionGrid:
         return bool(grid_search.clear_of(squared, radius, self.frame.resolution).all())
 
     @property
-    def wall_distance(self) -> NDArray[np.float32]:
-        """Metres from each cell centre to the nearest occupied cell centre."""
-        if self._wall_distance is None:
-            self._wall_distance = grid_search.distance_to(self.cells == OCCUPIED, self.frame.resolution)
-        return self._wall_distance
+    def wall_squared(self) -> NDArray[np.uint8]:
+        """(H, W) squared distance in cells from each cell's centre to the nearest occupied cell's
+        centre, capped at ``CLEARANCE_CAP`` (1.59 m at 0.1 m cells): one byte a cell, exact below."""
+        if self._wall_squared is None:
+            squared = grid_search.squared_distance_to(self.cells == OCCUPIED)
+            self._wall_squared = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
+        return self._wall_squared
+
+    def clear_of_walls(self, xy: NDArray, metres: float, outside: bool) -> NDArray[np.bool_]:
+        """Points (N, 2) of the location's frame at least ``metres`` from every occupied cell's
+        centre (``outside``: the answer off the grid). Past the compact raster's cap, a transform of
+        its own."""
+        limit = (metres / self.frame.resolution) ** 2
+        if limit > CLEARANCE_CAP - 1:
+            squared = grid_search.squared_distance_to(self.cells == OCCUPIED)
+            return self.values_at(xy, squared, np.iinfo(np.int32).max if outside else 0) >= limit - 1e-6
+        return self.values_at(xy, self.wall_squared, CLEARANCE_CAP if outside else 0) >= limit - 1e-6
 
     def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
@@ -291,7 +303,7 @@ class UnionGrid:
     def nbytes(self) -> int:
         parts = [*self._clearance.values(), *self._masks.values(), *self._parts.values()]
         total = self.cells.nbytes + sum(part.nbytes for part in parts)
-        return int(total + (self._wall_distance.nbytes if self._wall_distance is not None else 0))
+        return int(total + (self._wall_squared.nbytes if self._wall_squared is not None else 0))
 
 
 def build_union_grid(
@@ -362,7 +374,7 @@ class UnionGrids:
         if union is None:
             started = time.perf_counter()
             union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls)
-            union.wall_distance  # noqa: B018 - made here, timed with the grid: every tick's new-obstacle check needs it
+            union.wall_squared  # noqa: B018 - made here, timed with the grid: every tick's new-obstacle check needs it
             self._build_ms += (time.perf_counter() - started) * 1e3
             self._cache[vertex] = union
             if len(self._cache) > self.config.union_cache:
@@ -498,7 +510,7 @@ class LocalPlanner:
         if not len(near):
             return np.zeros((0, 2))
         xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
-        far = union.values_at(xy, union.wall_distance, np.float32(np.inf)) > self.config.new_obstacle_distance
+        far = union.clear_of_walls(xy, self.config.new_obstacle_distance, outside=True)
         return xy[far]
 
 

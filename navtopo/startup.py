@@ -283,7 +283,7 @@ def beam_contradictions(union: UnionGrid, pose: NDArray, angles: NDArray, ranges
     through = (crossing[:, :-offset] & ~wall[:, offset:] & before).any(axis=1)
     ends = transform_points(pose, direction * ranges[:, None])
     open_floor = union.values_at(ends, union.cells, UNKNOWN) == FREE
-    phantom = open_floor & (union.values_at(ends, union.wall_distance, np.float32(0.0)) >= tolerance)
+    phantom = open_floor & union.clear_of_walls(ends, tolerance, outside=False)
     return int(np.count_nonzero(through | phantom))
 
 

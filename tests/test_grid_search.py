@@ -101,11 +101,11 @@ def test_the_squared_distance_transform_is_scipys_exact_one_in_integers():
         exact = np.square(distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1])  # the outside blocked
         assert squared.dtype == np.int32 and np.array_equal(squared, np.rint(exact))
         blocked = rng.random((height, width)) < rng.uniform(0.0, 0.2)
-        metres = gs.distance_to(blocked, RES)  # the outside not counted
+        to_blocked = gs.squared_distance_to(blocked)  # the outside not counted
         if blocked.any():
-            assert metres == pytest.approx(distance_transform_edt(~blocked) * RES, abs=1e-5)
+            assert np.array_equal(to_blocked, np.rint(np.square(distance_transform_edt(~blocked))))
         else:
-            assert (metres >= (height + width) * RES - 1e-5).all()
+            assert (to_blocked == (height + width) ** 2).all()
 
 
 # --- line of sight ---------------------------------------------------------------------------

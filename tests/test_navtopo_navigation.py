@@ -117,6 +117,27 @@ def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_spac
     assert union.mask("known", 0.3).any()
 
 
+def test_a_union_grid_tells_points_clear_of_its_walls_as_the_exact_distance_does():
+    """``clear_of_walls`` from the one-byte raster (and past its cap, a transform of its own) is the
+    distance from the point's cell centre to the nearest wall cell's centre, off the grid as told."""
+    from navkit.raster import GridFrame
+    from navtopo.planning import UnionGrid
+
+    rng = np.random.default_rng(5)
+    cells = rng.choice([UNKNOWN, FREE, OCCUPIED], size=(60, 80), p=[0.2, 0.79, 0.01]).astype(np.uint8)
+    union = UnionGrid(0, cells, GridFrame(np.array([-4.0, -3.0]), 0.1))
+    walls = np.argwhere(cells == OCCUPIED)
+    xy = union.frame.to_world(np.stack([rng.integers(-3, 63, 400), rng.integers(-3, 83, 400)], axis=1))
+    xy += rng.uniform(-0.04, 0.04, xy.shape)
+    at = union.to_cell(xy)
+    on_grid = (at >= 0).all(axis=1) & (at < cells.shape).all(axis=1)
+    nearest = np.sqrt(((at[:, None, :] - walls[None, :, :]) ** 2).sum(axis=2).min(axis=1)) * 0.1
+    for metres in (0.25, 0.5, 1.0, 2.5):  # the last one past the cap
+        for outside in (True, False):
+            expected = np.where(on_grid, nearest >= metres - 1e-9, outside)
+            assert np.array_equal(union.clear_of_walls(xy, metres, outside), expected), (metres, outside)
+
+
 def test_the_time_spent_building_union_grids_is_handed_to_the_next_plan(tiny):
     """A union grid built before the plan's clock starts (by the new-obstacle check) is still
     counted: its milliseconds wait in the cache until taken, once; a cached grid adds none."""
