@@ -42,6 +42,10 @@ from navkit.geometry import inverse, transform_points, wrap_angle
 from navkit.raster import OCCUPIED, UNKNOWN, GridFrame
 from navtopo.local_grid import Grid, GridConfig, grid_frame
 
+# a prepared grid's distance field: uint16 steps of a 2048th of a cell, saturating at 32 cells
+# (3.2 m at 0.1 m cells); every use of it compares with a cutoff under 30 cells (checked)
+FIELD_STEPS_PER_CELL = 2048
+
 
 class MatchingConfig(BaseModel):
     """Parameters of ``match``; distances in metres, angles in radians."""
@@ -167,25 +171,47 @@ class PreparedGrid:
         self.occupied_cells = np.stack([rows, cols], axis=1)
         self.occupied_xy = grid_frame(self.grid_config).to_world(self.occupied_cells)
         self.known_count = int(np.count_nonzero(self.crop))
+        # compact: the distance field in 16-bit steps of ``field_unit`` (a 2048th of a cell,
+        # saturating at 32 cells, past any cutoff: interpolated between cells at most 1.5 cells
+        # apart, a value within one reads no saturated corner), the nearest wall cell as its index
+        # in occupied_xy plus one (0: none) in 16 bits where fewer walls allow (4 bytes a cell, not 8)
+        self.field_unit = self.resolution / FIELD_STEPS_PER_CELL
+        reach = max(self.config.field_cutoff, self.config.wall_tolerance) / self.resolution
+        if reach > np.iinfo(np.uint16).max / FIELD_STEPS_PER_CELL - 2:
+            raise ValueError(
+                f"matching: field_cutoff and wall_tolerance must stay under "
+                f"{(np.iinfo(np.uint16).max / FIELD_STEPS_PER_CELL - 2) * self.resolution:.2f} m (the distance field's range)"
+            )
+        index_type = np.uint16 if len(rows) < np.iinfo(np.uint16).max else np.uint32
         if len(self.occupied_xy):
             distance, labels = cv2.distanceTransformWithLabels(
                 1 - walls, cv2.DIST_L2, cv2.DIST_MASK_5, labelType=cv2.DIST_LABEL_PIXEL
             )
-            # map each label (one per wall cell) to the index of that cell in occupied_xy
-            lut = np.full(int(labels.max()) + 1, -1, dtype=np.int32)
-            lut[labels[rows - self.row0, cols - self.col0]] = np.arange(len(rows), dtype=np.int32)
+            # map each label (one per wall cell) to the index of that cell in occupied_xy, plus one
+            lut = np.zeros(int(labels.max()) + 1, dtype=index_type)
+            lut[labels[rows - self.row0, cols - self.col0]] = np.arange(1, len(rows) + 1)
             self.nearest = lut[labels]
-            self.distance = distance * np.float32(self.resolution)
+            steps = np.rint(np.minimum(distance * FIELD_STEPS_PER_CELL, np.iinfo(np.uint16).max))
+            self.field = steps.astype(np.uint16)
         else:
-            self.nearest = np.full(self.crop.shape, -1, dtype=np.int32)
-            self.distance = np.full(self.crop.shape, np.inf, dtype=np.float32)
+            self.nearest = np.zeros(self.crop.shape, dtype=index_type)
+            self.field = np.full(self.crop.shape, np.iinfo(np.uint16).max, dtype=np.uint16)
+
+    def steps_within(self, metres: float) -> int:
+        """The most field steps that count as within ``metres``: as the float32 field in metres
+        the field was before it was kept in steps counted them (a cell exactly at the tolerance
+        left out: ``float32(2) * float32(0.1) > 0.2``), so verdicts are unchanged."""
+        steps = int(np.floor(metres / self.field_unit)) + 1
+        while steps >= 0 and float(np.float32(steps / FIELD_STEPS_PER_CELL) * np.float32(self.resolution)) > metres:
+            steps -= 1
+        return steps
 
     @property
     def nbytes(self) -> int:
         """Bytes of the arrays held for matching (the grid's crop to its known cells and a margin,
         the distance transform, the nearest-wall lookup, wall cells and, once computed, the
         features); the full canvas is not kept."""
-        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.nearest, self.distance]
+        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.nearest, self.field]
         total = sum(int(a.nbytes) for a in arrays)
         if "features" in self.__dict__:
             xy, descriptors = self.features
@@ -358,7 +384,7 @@ def _icp(points, pose, target_xy, nearest, row0, col0, half, resolution, distanc
                 row, col = _cell_in_crop(px, py, row0, col0, half, resolution, height, width)
                 if row < 0:
                     continue
-                j = nearest[row, col]
+                j = np.int64(nearest[row, col]) - 1  # stored plus one: 0 is no wall
                 if j < 0:
                     continue
                 dx, dy = target_xy[j, 0] - px, target_xy[j, 1] - py
@@ -390,10 +416,10 @@ def _icp(points, pose, target_xy, nearest, row0, col0, half, resolution, distanc
 
 
 @njit(cache=True, nogil=True)
-def _wall_counts(points, pose, crop, distance, row0, col0, half, resolution, tolerance):
+def _wall_counts(points, pose, crop, field, row0, col0, half, resolution, tolerance_steps):
     """(agree, conflict): points (occupied cells of one grid) moved by ``pose`` into the other
-    grid that lie within ``tolerance`` of its occupied cells, and those that fall into its free
-    space farther than that."""
+    grid that lie within ``tolerance_steps`` (the field's steps) of its occupied cells, and those
+    that fall into its free space farther than that."""
     height, width = crop.shape
     c, s = np.cos(pose[2]), np.sin(pose[2])
     agree = 0
@@ -404,7 +430,7 @@ def _wall_counts(points, pose, crop, distance, row0, col0, half, resolution, tol
         row, col = _cell_in_crop(px, py, row0, col0, half, resolution, height, width)
         if row < 0:
             continue
-        if distance[row, col] <= tolerance:
+        if field[row, col] <= tolerance_steps:
             agree += 1
         elif crop[row, col] == 1:  # FREE
             conflict += 1
@@ -433,10 +459,10 @@ def _known_intersection(crop_a, row0_a, col0_a, crop_b, row0_b, col0_b, pose_ab,
 
 
 @njit(cache=True, nogil=True)
-def _field_normal_equations(points, x, y, yaw, field, row0, col0, half, resolution, cutoff):  # pragma: no cover
+def _field_normal_equations(points, x, y, yaw, field, unit, row0, col0, half, resolution, cutoff):  # pragma: no cover
     """Gauss-Newton's ``J^T J`` (3 x 3) and ``J^T d`` (3) of the points' bilinearly interpolated
-    distances on the field at pose (x, y, yaw), the sum of squared distances and the number of
-    points used (those within ``cutoff``)."""
+    distances on the field (its steps of ``unit`` metres) at pose (x, y, yaw), the sum of squared
+    distances and the number of points used (those within ``cutoff``)."""
     height, width = field.shape
     c, s = np.cos(yaw), np.sin(yaw)
     h = np.zeros((3, 3))
@@ -456,8 +482,8 @@ def _field_normal_equations(points, x, y, yaw, field, row0, col0, half, resoluti
         if i0 < 0 or j0 < 0 or i0 + 1 >= height or j0 + 1 >= width:
             continue
         fu, fv = u - j0, v - i0
-        f00, f01 = field[i0, j0], field[i0, j0 + 1]
-        f10, f11 = field[i0 + 1, j0], field[i0 + 1, j0 + 1]
+        f00, f01 = field[i0, j0] * unit, field[i0, j0 + 1] * unit
+        f10, f11 = field[i0 + 1, j0] * unit, field[i0 + 1, j0 + 1] * unit
         d = (1 - fv) * ((1 - fu) * f00 + fu * f01) + fv * ((1 - fu) * f10 + fu * f11)
         if d > cutoff:
             continue
@@ -475,7 +501,7 @@ def _field_normal_equations(points, x, y, yaw, field, row0, col0, half, resoluti
 
 
 @njit(cache=True, nogil=True)
-def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterations):
+def _field_fit(points, pose, field, unit, row0, col0, half, resolution, cutoff, iterations):
     """Gauss-Newton on the distance field of the target's occupied cells: the pose minimising
     the squared, bilinearly interpolated distances of ``points`` (those within ``cutoff``).
 
@@ -484,7 +510,7 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
     """
     x, y, yaw = pose[0], pose[1], pose[2]
     for _ in range(iterations):
-        h, g, _, used = _field_normal_equations(points, x, y, yaw, field, row0, col0, half, resolution, cutoff)
+        h, g, _, used = _field_normal_equations(points, x, y, yaw, field, unit, row0, col0, half, resolution, cutoff)
         if used < 3:
             break
         for a in range(3):
@@ -498,9 +524,9 @@ def _field_fit(points, pose, field, row0, col0, half, resolution, cutoff, iterat
     return np.array([x, y, yaw])
 
 
-def _field(reference: PreparedGrid) -> tuple[NDArray[np.float32], int, int, int, float]:
-    """The reference's distance field and its crop's placement, as the field functions take them."""
-    return reference.distance, reference.row0, reference.col0, reference.half, reference.resolution
+def _field(reference: PreparedGrid) -> tuple[NDArray[np.uint16], float, int, int, int, float]:
+    """The reference's distance field, its unit and its crop's placement, as the field functions take them."""
+    return reference.field, reference.field_unit, reference.row0, reference.col0, reference.half, reference.resolution
 
 
 def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
@@ -563,12 +589,12 @@ def verdict(
             source.occupied_xy,
             frame,
             target.crop,
-            target.distance,
+            target.field,
             target.row0,
             target.col0,
             target.half,
             target.resolution,
-            config.wall_tolerance,
+            target.steps_within(config.wall_tolerance),
         )
         agree += a
         conflict += c

@@ -7,6 +7,7 @@ import pytest
 from pydantic import ValidationError
 
 from navkit.geometry import between, compose, inverse, wrap_angle
+from navkit.raster import OCCUPIED
 from navtopo.local_grid import GridConfig, grid_from_points
 from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match
 
@@ -118,6 +119,28 @@ def test_prepared_grids_give_the_same_result(grids):
     prepared = match(PreparedGrid(reference, CONFIG), PreparedGrid(query, CONFIG))
     np.testing.assert_allclose(prepared.pose, plain.pose)
     assert prepared.score == pytest.approx(plain.score)
+
+
+def test_a_prepared_grid_keeps_its_distance_field_and_nearest_walls_compact_and_exact(grids):
+    """The distance field in 16-bit steps is OpenCV's float field to a step (saturated far past any
+    cutoff), the nearest-wall lookup (index plus one, 16 bits) names a wall at that distance, and
+    the tolerance in steps counts as the float32 field in metres did."""
+    import cv2
+
+    prepared = PreparedGrid(grids[0], CONFIG)
+    walls = (prepared.crop == OCCUPIED).astype(np.uint8)
+    metres = cv2.distanceTransform(1 - walls, cv2.DIST_L2, cv2.DIST_MASK_5) * np.float32(CONFIG.resolution)
+    assert prepared.field.dtype == np.uint16 and prepared.nearest.dtype == np.uint16
+    near = metres < 3.0
+    assert np.abs(prepared.field[near] * prepared.field_unit - metres[near]).max() <= prepared.field_unit
+    assert (prepared.field[~near] * prepared.field_unit >= 3.0 - prepared.field_unit).all()
+    rows, cols = np.nonzero(prepared.nearest)
+    walls_xy = prepared.occupied_cells[prepared.nearest[rows, cols].astype(np.int64) - 1]
+    wall_distance = np.hypot(walls_xy[:, 0] - rows - prepared.row0, walls_xy[:, 1] - cols - prepared.col0) * CONFIG.resolution
+    assert np.allclose(wall_distance[metres[rows, cols] < 1.0], metres[rows, cols][metres[rows, cols] < 1.0], atol=0.1)
+    for tolerance in (0.1, 0.15, 0.2, 0.3):
+        steps = prepared.steps_within(tolerance)
+        assert np.array_equal(prepared.field[near] <= steps, metres[near].astype(np.float64) <= tolerance)
 
 
 def test_different_places_are_rejected(grids):
