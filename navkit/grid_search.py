@@ -928,9 +928,7 @@ def sight_raster(free: ArrayLike) -> NDArray[np.uint8]:
     return np.asarray(_chebyshev_clearance(_as_grid(free)), dtype=np.uint8)
 
 
-def theta_star(
-    free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDArray[np.uint8] | None = None
-) -> CellPath | None:
+def theta_star(free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDArray[np.uint8] | None = None) -> CellPath | None:
     """Any-angle path: Lazy Theta*, then shortcut and vertex refinement (all compiled).
 
     free: (H, W) bool; start, goal: (row, col); sight: ``sight_raster(free)`` if the caller keeps it
@@ -1043,6 +1041,8 @@ def nearest_free(free: ArrayLike, cell: ArrayLike, max_radius_cells: int) -> Cel
     if r < 0:
         return None
     return int(r), int(c)
+
+
 # Jump point search for the no-corner-cutting rule (appended to grid_search.py)
 
 
@@ -1134,21 +1134,30 @@ def _jps_kernel(free, start_r, start_c, goal_r, goal_c):
             jr = jumped // width
             jc = jumped - jr * width
             g_new = g[current] + _octile(r, c, jr, jc)
-            if state[jumped] == _UNSEEN:
-                slot = size
-                size += 1
-                nodes[slot] = jumped
-                state[jumped] = _OPEN
-            elif g_new < g[jumped]:
-                slot = pos[jumped]
-            else:
-                continue
-            g[jumped] = g_new
-            parent[jumped] = current
-            keys[slot] = g_new + _octile(jr, jc, goal_r, goal_c)
-            ties[slot] = g_new
-            _sift_up(nodes, keys, ties, pos, slot)
+            size = _relax(state, g, parent, pos, nodes, keys, ties, size, jumped, current, g_new, _octile(jr, jc, goal_r, goal_c))
     return np.empty((0, 2), np.int64)
+
+
+@njit(cache=True, inline="always")
+def _relax(state, g, parent, pos, nodes, keys, ties, size, node, via, g_new, heuristic):
+    """Open ``node`` at cost ``g_new`` through ``via``, or lower its cost if that is less; returns
+    the heap's new size. (``_astar_kernel`` and ``_field_kernel`` write this out: a helper there
+    measured slower, where the relaxation is most of the work.)"""
+    if state[node] == _UNSEEN:
+        slot = size
+        size += 1
+        nodes[slot] = node
+        state[node] = _OPEN
+    elif g_new < g[node]:
+        slot = pos[node]
+    else:
+        return size
+    g[node] = g_new
+    parent[node] = via
+    keys[slot] = g_new + heuristic
+    ties[slot] = g_new
+    _sift_up(nodes, keys, ties, pos, slot)
+    return size
 
 
 @njit(cache=True)
