@@ -146,6 +146,11 @@ def write_crafted_run(
                 "growth": [[0.0, 0], [4.0, memory["map"] // 2], [8.0, memory["map"]]],
                 "memory": memory,
                 **({"anchors": ANCHORS, "vertices": 2, "edges": 1} if system == "navtopo" else {}),
+                **(
+                    {"keyframes": 11, "raw_cloud_bytes": 2_400_000, "rtabmap_style_bytes": 2_650_000}
+                    if system == "metric_grid"
+                    else {}
+                ),
             },
         )
         dump(root / "navigation" / f"{system}.json", {"map_load_ms": 12.0, "memory": memory})

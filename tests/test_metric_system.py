@@ -84,6 +84,10 @@ def test_half_the_mapping_route_gives_a_grid_whose_walls_match_ground_truth(tiny
     parts = ("keyframe_scan_bytes", "kiss_icp_map_bytes", "pose_graph_bytes", "log_odds_grid_bytes")
     assert stats["mapping_state_bytes"] == sum(stats[k] for k in parts)
     assert stats["keyframe_scan_bytes"] > 0 and stats["log_odds_grid_bytes"] > 0
+    # the RTAB-MAP-style figure: the keyframes' raw clouds (more than their 2D scans), apart
+    assert stats["raw_cloud_bytes"] > stats["keyframe_scan_bytes"] and stats["raw_cloud_bytes"] % 12 == 0
+    parts_kept = stats["raw_cloud_bytes"] + stats["keyframe_scan_bytes"] + stats["pose_graph_bytes"] + stats["map_bytes"]
+    assert stats["rtabmap_style_bytes"] == parts_kept
     assert stats["kiss_icp_map_bytes"] == 0  # wheel odometry by default: no kiss-icp map
     # a keyframe every 0.75 m of the ~40 m drive (or 20° of turning), and the revisits closed loops
     assert 50 <= stats["keyframes"] <= 120
