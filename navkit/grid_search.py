@@ -49,6 +49,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from navkit.raster import TILE, TILE_SHIFT, TiledRaster
+
 Cell = tuple[int, int]
 CellPath = NDArray[np.int64]
 
@@ -740,15 +742,16 @@ def _field_kernel(free, goal_r, goal_c):
 
 
 @njit(cache=True)
-def _descend_kernel(free, field, per_cell, start_r, start_c):
+def _descend_kernel(free, tile_of, tiles, per_cell, start_r, start_c):
     """(K, 2) cells from the start down ``field`` (``_field_kernel``'s) to its goal (each step to
     the 8-neighbour that the Dijkstra reached it from: the least field value plus the step; with
     lengths rounded to 1 / ``per_cell`` cell, one within that of it), or (0, 2) if no way. Every
-    step goes to a lower value, so the walk ends."""
+    step goes to a lower value, so the walk ends. The field comes as a ``TiledRaster``'s ``tile_of`` and
+    ``tiles``."""
     out = np.empty((256, 2), np.int64)
     count = 0
     r, c = start_r, start_c
-    if field[r, c] == FIELD_UNREACHED:
+    if _tile_at(tile_of, tiles, r, c) == FIELD_UNREACHED:
         return out[:0]
     straight = per_cell
     diagonal = per_cell * SQRT2
@@ -760,7 +763,7 @@ def _descend_kernel(free, field, per_cell, start_r, start_c):
         out[count, 0] = r
         out[count, 1] = c
         count += 1
-        here = field[r, c]
+        here = _tile_at(tile_of, tiles, r, c)
         if here == 0:
             return out[:count]
         moves = _allowed_moves(free, r, c)
@@ -771,14 +774,21 @@ def _descend_kernel(free, field, per_cell, start_r, start_c):
                 continue
             nr = r + k // 3 - 1
             nc = c + k % 3 - 1
-            if not field[nr, nc] < here:
+            there = _tile_at(tile_of, tiles, nr, nc)
+            if not there < here:
                 continue
-            value = float(field[nr, nc]) + (diagonal if nr != r and nc != c else straight)
+            value = float(there) + (diagonal if nr != r and nc != c else straight)
             if value < best:
                 best, best_r, best_c = value, nr, nc
         if best_r < 0:  # a dead end (new obstacles round it): no way rather than a loop
             return out[:0]
         r, c = best_r, best_c
+
+
+@njit(cache=True, inline="always")
+def _tile_at(tile_of, tiles, r, c):
+    """The value of cell (r, c) of a ``TiledRaster`` given as its index and tiles."""
+    return tiles[tile_of[r >> TILE_SHIFT, c >> TILE_SHIFT], r & (TILE - 1), c & (TILE - 1)]
 
 
 @njit(cache=True)
@@ -952,14 +962,16 @@ def theta_star(free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDArra
 class GoalField(NamedTuple):
     """The length of the shortest 8-connected path (no corner cutting) from each cell of a mask to
     one goal cell: ``steps`` (H, W) uint16 in units of 1 / ``per_cell`` cell, ``FIELD_UNREACHED``
-    where no way leads (2 bytes a cell: a goal's field is kept while the goal lasts)."""
+    where no way leads; kept while the goal lasts, so as the tiles a way leads into
+    (``navkit.raster.TiledRaster``: 2 bytes a cell of those, the unreached rest one shared tile)."""
 
-    steps: NDArray[np.uint16]
+    steps: TiledRaster
     per_cell: float
 
     def cells(self) -> NDArray[np.float64]:
         """(H, W) the lengths in cells (inf where no way leads)."""
-        return np.where(self.steps == FIELD_UNREACHED, np.inf, self.steps / self.per_cell)
+        steps = self.steps.dense()
+        return np.where(steps == FIELD_UNREACHED, np.inf, steps / self.per_cell)
 
     @property
     def nbytes(self) -> int:
@@ -971,9 +983,9 @@ def goal_field(free: ArrayLike, goal: ArrayLike) -> GoalField:
     every later path to that goal by ``field_path``, from any start, without a search."""
     grid, goal = _as_grid(free), _cell(goal)
     if not _is_free(grid, goal):
-        return GoalField(np.full(grid.shape, FIELD_UNREACHED, np.uint16), FIELD_PER_CELL)
+        return GoalField(TiledRaster.of(np.full(grid.shape, FIELD_UNREACHED, np.uint16), FIELD_UNREACHED), FIELD_PER_CELL)
     steps, per_cell = _field_kernel(grid, goal[0], goal[1])
-    return GoalField(np.asarray(steps), float(per_cell))
+    return GoalField(TiledRaster.of(np.asarray(steps), FIELD_UNREACHED), float(per_cell))
 
 
 def field_path(free: ArrayLike, field: GoalField, start: ArrayLike, sight: NDArray[np.uint8] | None = None) -> CellPath | None:
@@ -986,7 +998,7 @@ def field_path(free: ArrayLike, field: GoalField, start: ArrayLike, sight: NDArr
     grid, start = _as_grid(free), _cell(start)
     if not _is_free(grid, start):
         return None
-    cells = _descend_kernel(grid, field.steps, field.per_cell, start[0], start[1])
+    cells = _descend_kernel(grid, field.steps.tile_of, field.steps.tiles, field.per_cell, start[0], start[1])
     if cells.shape[0] == 0:
         return None
     return _pulled(grid.view(np.uint8) if sight is None else sight, cells)

@@ -30,7 +30,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -92,6 +92,58 @@ class GridFrame:
         """(xmin, ymin, xmax, ymax) of a raster of ``shape`` (H, W) in this frame, metres."""
         x0, y0 = self.to_world(np.zeros(2)) - 0.5 * self.resolution
         return (float(x0), float(y0), float(x0 + shape[1] * self.resolution), float(y0 + shape[0] * self.resolution))
+
+
+TILE_SHIFT = 4
+TILE = 1 << TILE_SHIFT  # cells a side of a ``TiledRaster``'s tile
+
+
+class TiledRaster(NamedTuple):
+    """A raster kept as those of its ``TILE`` x ``TILE`` tiles that hold a value other than ``fill``:
+    most of a building's map lies far from every wall or out of reach, where a distance saturates or
+    a field is unreached. ``tile_of[r >> TILE_SHIFT, c >> TILE_SHIFT]`` names a cell's tile (0: the one
+    shared tile of ``fill``), ``tiles[k, r % TILE, c % TILE]`` holds its value. Lossless:
+    ``dense()`` gives the raster back, ``at`` reads it where the raster would be read."""
+
+    tile_of: NDArray[np.int32]
+    tiles: NDArray[Any]  # (K + 1, TILE, TILE); tiles[0] is all ``fill``
+    shape: tuple[int, int]
+
+    @classmethod
+    def of(cls, dense: NDArray[Any], fill: Any) -> TiledRaster:
+        height, width = dense.shape
+        rows, cols = -(-height // TILE), -(-width // TILE)
+        padded = np.full((rows * TILE, cols * TILE), fill, dtype=dense.dtype)
+        padded[:height, :width] = dense
+        blocks = padded.reshape(rows, TILE, cols, TILE).swapaxes(1, 2)
+        live = (blocks != padded.dtype.type(fill)).any(axis=(2, 3))
+        index = np.zeros((rows, cols), np.int32)
+        index[live] = np.arange(1, int(live.sum()) + 1, dtype=np.int32)
+        tiles = np.empty((int(live.sum()) + 1, TILE, TILE), dtype=dense.dtype)
+        tiles[0] = fill
+        tiles[1:] = blocks[live]
+        return cls(index, tiles, (height, width))
+
+    @property
+    def fill(self) -> Any:
+        return self.tiles[0, 0, 0]
+
+    @property
+    def dtype(self) -> np.dtype[Any]:
+        return self.tiles.dtype
+
+    def at(self, rows: NDArray[np.integer], cols: NDArray[np.integer]) -> NDArray[Any]:
+        """The values at cells (rows, cols), integer arrays of one shape, every cell on the raster."""
+        return self.tiles[self.tile_of[rows >> TILE_SHIFT, cols >> TILE_SHIFT], rows & (TILE - 1), cols & (TILE - 1)]
+
+    def dense(self) -> NDArray[Any]:
+        rows, cols = self.tile_of.shape
+        whole = self.tiles[self.tile_of].swapaxes(1, 2).reshape(rows * TILE, cols * TILE)
+        return np.ascontiguousarray(whole[: self.shape[0], : self.shape[1]])
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.tile_of.nbytes + self.tiles.nbytes)
 
 
 def largest_component(mask: NDArray[np.bool_]) -> NDArray[np.bool_]:

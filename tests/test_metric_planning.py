@@ -229,6 +229,11 @@ def test_a_goal_field_serves_the_plans_after_the_first_to_the_same_goal():
         length = float(np.hypot(*np.diff(planned.points, axis=0).T).sum())
         assert length == pytest.approx(float(np.hypot(*np.diff(expected.points, axis=0).T).sum()), rel=0.01)
         assert bool(planner._fields) == (k >= 1)
-    assert planner.nbytes == searching.nbytes + 2 * grid.cells.size * len(planner._fields)  # 16 bits a cell
+    kept = sum(field.nbytes for _, field in planner._fields.values())
+    assert planner.nbytes == searching.nbytes + kept
+    # 16 bits a cell of the tiles a way leads into, the unreached rest one shared tile
+    for _, field in planner._fields.values():
+        assert field.nbytes == field.steps.tile_of.nbytes + 2 * 16 * 16 * len(field.steps.tiles)
+        assert len(field.steps.tiles) - 1 == int((field.steps.tile_of > 0).sum())
     planner.forget()
     assert not planner._fields

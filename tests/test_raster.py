@@ -9,9 +9,11 @@ import yaml
 from navkit.raster import (
     FREE,
     OCCUPIED,
+    TILE,
     UNKNOWN,
     GridFrame,
     MapFileError,
+    TiledRaster,
     inside,
     read_map_server,
     trinary_image,
@@ -144,3 +146,20 @@ def test_a_size_check_refuses_before_decoding(tmp_path):
     with pytest.raises(MapFileError, match="m.yaml: image: too large for this test"):
         read_map_server(tmp_path / "m.yaml", check_size=check)
     assert seen == [((40, 30), 0.1, "m.png")]  # from the header, once: nothing was decoded
+
+
+def test_a_tiled_raster_keeps_every_value_and_only_the_tiles_off_its_fill():
+    """``TiledRaster``: lossless (``dense`` and ``at`` give the raster back, ragged edges included)
+    and only the tiles that hold a value other than the fill are stored."""
+    rng = np.random.default_rng(3)
+    for height, width in [(1, 1), (16, 16), (17, 33), (70, 45)]:
+        dense = np.full((height, width), 500, np.int16)
+        marked = rng.random((height, width)) < 0.01
+        dense[marked] = rng.integers(-400, 400, int(marked.sum()))
+        tiled = TiledRaster.of(dense, 500)
+        assert np.array_equal(tiled.dense(), dense) and tiled.dense().dtype == np.int16
+        rows, cols = np.indices(dense.shape)
+        assert np.array_equal(tiled.at(rows, cols), dense)
+        live = {(r // TILE, c // TILE) for r, c in zip(*np.nonzero(dense != 500), strict=True)}
+        assert len(tiled.tiles) == len(live) + 1 and tiled.fill == 500
+        assert tiled.nbytes == tiled.tile_of.nbytes + (len(live) + 1) * TILE * TILE * 2
