@@ -12,6 +12,8 @@ All functions accept a single pose ``(3,)`` or a stack ``(N, 3)`` where noted.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -37,6 +39,20 @@ def compose(a: ArrayLike, b: ArrayLike) -> Pose2:
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
     yaw = wrap_angle(a[..., 2] + b[..., 2])
     return np.stack([x, y, np.asarray(yaw)], axis=-1)
+
+
+def chain(steps: ArrayLike) -> Pose2:
+    """(K + 1, 3): the identity, then each of ``steps`` (K, 3) composed onto the pose before: where
+    a chain of relative poses leads, ``compose`` applied in turn, in plain floats (a route's few
+    edges cost a numpy call each otherwise)."""
+    out = [(0.0, 0.0, 0.0)]
+    x = y = yaw = 0.0
+    for dx, dy, dyaw in np.asarray(steps, dtype=np.float64).reshape(-1, 3).tolist():
+        c, s = math.cos(yaw), math.sin(yaw)
+        x, y = x + c * dx - s * dy, y + s * dx + c * dy
+        yaw = (yaw + dyaw + math.pi) % (2.0 * math.pi) - math.pi
+        out.append((x, y, yaw))
+    return np.array(out, dtype=np.float64)
 
 
 def inverse(a: ArrayLike) -> Pose2:

@@ -363,11 +363,12 @@ def densify(points: ArrayLike, step: float) -> NDArray[np.float64]:
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if len(points) < 2:
         return points.copy()
-    pieces = [points[:1]]
-    for a, b in zip(points[:-1], points[1:], strict=True):
-        count = max(int(math.ceil(float(np.hypot(*(b - a))) / step)), 1)
-        pieces.append(a + np.arange(1, count + 1)[:, None] / count * (b - a))
-    return np.vstack(pieces)
+    legs = np.diff(points, axis=0)
+    counts = np.maximum(np.ceil(np.hypot(legs[:, 0], legs[:, 1]) / step).astype(np.int64), 1)
+    leg = np.repeat(np.arange(len(legs)), counts)
+    # the k-th of each leg's ``count`` points, k = 1..count: its start plus k / count of the leg
+    k = np.arange(1, int(counts.sum()) + 1) - np.repeat(np.cumsum(counts) - counts, counts)
+    return np.vstack([points[:1], points[leg] + (k / counts[leg])[:, None] * legs[leg]])
 
 
 def leg_clearances(points: NDArray, clearance_at: ClearanceAt, step: float) -> NDArray[np.float64]:

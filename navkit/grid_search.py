@@ -102,6 +102,41 @@ def squared_distance_to(blocked: ArrayLike) -> NDArray[np.int32]:
     return np.asarray(_squared_distance_kernel(np.ascontiguousarray(~blocked), False))
 
 
+def far_from(
+    blocked: NDArray[np.bool_], cells: ArrayLike, radius_m: float, resolution: float, outside: bool
+) -> NDArray[np.bool_]:
+    """Whether each cell (N, 2) [row, col] lies at least ``radius_m`` from the centre of every cell
+    of ``blocked`` (H, W), centre to centre (``outside``: the answer for a cell off the grid):
+    ``squared_distance_to(blocked) >= (radius_m / resolution)^2`` there, from the cells round each
+    alone (no transform of the whole grid for a few points)."""
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+    radius_cells = radius_m / resolution
+    threshold = radius_cells * radius_cells - 1e-6
+    return np.asarray(_far_from_kernel(np.ascontiguousarray(blocked, dtype=np.bool_), cells, threshold, outside))
+
+
+@njit(cache=True, nogil=True)
+def _far_from_kernel(blocked, cells, threshold, outside):
+    height, width = blocked.shape
+    reach = int(math.ceil(math.sqrt(max(threshold, 0.0))))
+    out = np.empty(cells.shape[0], np.bool_)
+    for i in range(cells.shape[0]):
+        r, c = cells[i, 0], cells[i, 1]
+        if r < 0 or r >= height or c < 0 or c >= width:
+            out[i] = outside
+            continue
+        clear = True
+        for dr in range(max(-reach, -r), min(reach, height - 1 - r) + 1):
+            for dc in range(max(-reach, -c), min(reach, width - 1 - c) + 1):
+                if dr * dr + dc * dc < threshold and blocked[r + dr, c + dc]:
+                    clear = False
+                    break
+            if not clear:
+                break
+        out[i] = clear
+    return out
+
+
 def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np.bool_]:
     """The cells of ``clearance_squared`` at least ``radius_m`` from every non-free cell."""
     radius_cells = radius_m / resolution

@@ -16,6 +16,7 @@ from __future__ import annotations
 import heapq
 import io
 import json
+import math
 from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
@@ -123,8 +124,8 @@ class TopologicalGraph:
         vertex's next one on the way back to ``source``), over the edges but those in ``removed``
         (``frozenset((u, v))``: edges found impassable during a trial)."""
         n = len(self.vertices)
-        dist = np.full(n, np.inf)
-        prev = np.full(n, -1, dtype=np.int64)
+        dist = [math.inf] * n  # plain floats: a search of a few hundred vertices, no numpy per edge
+        prev = [-1] * n
         dist[source] = 0.0
         heap = [(0.0, source)]
         while heap:
@@ -134,12 +135,12 @@ class TopologicalGraph:
             for v, pose in self._adjacency[u].items():
                 if removed and frozenset((u, v)) in removed:
                     continue
-                nd = d + float(np.hypot(pose[0], pose[1]))
+                nd = d + math.hypot(pose[0], pose[1])
                 if nd < dist[v]:
                     dist[v] = nd
                     prev[v] = u
                     heapq.heappush(heap, (nd, v))
-        return dist, prev
+        return np.array(dist, dtype=np.float64), np.array(prev, dtype=np.int64)
 
     def shortest_path(self, source: int, target: int) -> tuple[list[int] | None, float]:
         dist, prev = self.dijkstra(source)

@@ -232,7 +232,8 @@ def warped_bounds(
     if height == 0 or width == 0:
         return 0, 0, 0, 0
     matrix = _warp_matrix(pose, cropped.size, size, resolution)  # output pixel -> input pixel
-    forward = np.linalg.inv(np.vstack([matrix, [0.0, 0.0, 1.0]]))[:2]
+    turn = matrix[:, :2].T  # a rotation's inverse is its transpose
+    forward = np.hstack([turn, -turn @ matrix[:, 2:]])
     xs = np.array([cropped.col0 - 1, cropped.col0 + width, cropped.col0 - 1, cropped.col0 + width], dtype=np.float64)
     ys = np.array([cropped.row0 - 1, cropped.row0 - 1, cropped.row0 + height, cropped.row0 + height], dtype=np.float64)
     out = forward @ np.vstack([xs, ys, np.ones(4)])

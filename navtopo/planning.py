@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
-from navkit.geometry import compose, inverse, transform_points
+from navkit.geometry import chain, compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, densify, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navtopo.graph import TopologicalGraph
@@ -158,10 +158,7 @@ class GlobalPlanner:
 
 def path_positions(graph: TopologicalGraph, path: list[int]) -> NDArray[np.float64]:
     """(len(path), 3) each vertex's observation point in the frame of ``path[0]``, composed along the edges."""
-    poses = [np.zeros(3)]
-    for u, v in zip(path[:-1], path[1:], strict=True):
-        poses.append(compose(poses[-1], graph.edge(u, v)))
-    return np.asarray(poses)
+    return chain([graph.edge(u, v) for u, v in zip(path[:-1], path[1:], strict=True)])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -184,7 +181,6 @@ class UnionGrid:
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
     _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
     _parts: dict[tuple[str, float, bool], NDArray[np.integer]] = field(default_factory=dict)
-    _wall_squared: NDArray[np.uint8] | None = None
 
     def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
         """Points (N, 2+) of the location's frame -> cells (N, 2) [row, col] (no bounds check)."""
@@ -267,24 +263,11 @@ class UnionGrid:
         squared = np.square(np.argwhere(~free) - reach).sum(axis=1)  # to each non-free cell round it
         return bool(grid_search.clear_of(squared, radius, self.frame.resolution).all())
 
-    @property
-    def wall_squared(self) -> NDArray[np.uint8]:
-        """(H, W) squared distance in cells from each cell's centre to the nearest occupied cell's
-        centre, capped at ``CLEARANCE_CAP`` (1.59 m at 0.1 m cells): one byte a cell, exact below."""
-        if self._wall_squared is None:
-            squared = grid_search.squared_distance_to(self.cells == OCCUPIED)
-            self._wall_squared = np.minimum(squared, CLEARANCE_CAP).astype(np.uint8)
-        return self._wall_squared
-
     def clear_of_walls(self, xy: NDArray, metres: float, outside: bool) -> NDArray[np.bool_]:
         """Points (N, 2) of the location's frame at least ``metres`` from every occupied cell's
-        centre (``outside``: the answer off the grid). Past the compact raster's cap, a transform of
-        its own."""
-        limit = (metres / self.frame.resolution) ** 2
-        if limit > CLEARANCE_CAP - 1:
-            squared = grid_search.squared_distance_to(self.cells == OCCUPIED)
-            return self.values_at(xy, squared, np.iinfo(np.int32).max if outside else 0) >= limit - 1e-6
-        return self.values_at(xy, self.wall_squared, CLEARANCE_CAP if outside else 0) >= limit - 1e-6
+        centre (``outside``: the answer off the grid), from the cells round each point alone
+        (``grid_search.far_from``)."""
+        return grid_search.far_from(self.cells == OCCUPIED, self.to_cell(xy), metres, self.frame.resolution, outside)
 
     def values_at(self, xy: NDArray, array: NDArray, outside: float | np.floating) -> NDArray:
         """``array`` (H, W) sampled at points (N, 2) of the location's frame; ``outside`` off the grid."""
@@ -303,7 +286,7 @@ class UnionGrid:
     def nbytes(self) -> int:
         parts = [*self._clearance.values(), *self._masks.values(), *self._parts.values()]
         total = self.cells.nbytes + sum(part.nbytes for part in parts)
-        return int(total + (self._wall_squared.nbytes if self._wall_squared is not None else 0))
+        return int(total)
 
 
 def build_union_grid(
@@ -374,7 +357,6 @@ class UnionGrids:
         if union is None:
             started = time.perf_counter()
             union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls)
-            union.wall_squared  # noqa: B018 - made here, timed with the grid: every tick's new-obstacle check needs it
             self._build_ms += (time.perf_counter() - started) * 1e3
             self._cache[vertex] = union
             if len(self._cache) > self.config.union_cache:

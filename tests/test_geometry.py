@@ -89,3 +89,13 @@ def test_arc_lengths_are_the_running_sum_of_segment_lengths():
     path = np.array([[0.0, 0.0, 9.0], [3.0, 4.0, 9.0], [3.0, 4.0, 9.0], [3.0, 6.0, 9.0]])
     assert np.allclose(arc_lengths(path), [0.0, 5.0, 5.0, 7.0])
     assert arc_lengths(path[:1]).tolist() == [0.0]
+
+
+def test_a_chain_of_relative_poses_leads_where_composing_them_in_turn_does():
+    rng = np.random.default_rng(7)
+    steps = rng.normal(size=(30, 3)) * np.array([3.0, 3.0, 2.5])
+    expected = [np.zeros(3)]
+    for step in steps:
+        expected.append(se2.compose(expected[-1], step))
+    assert np.allclose(se2.chain(steps), np.array(expected), atol=1e-12)
+    assert np.array_equal(se2.chain(np.zeros((0, 3))), np.zeros((1, 3)))

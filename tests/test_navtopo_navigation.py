@@ -118,8 +118,8 @@ def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_spac
 
 
 def test_a_union_grid_tells_points_clear_of_its_walls_as_the_exact_distance_does():
-    """``clear_of_walls`` from the one-byte raster (and past its cap, a transform of its own) is the
-    distance from the point's cell centre to the nearest wall cell's centre, off the grid as told."""
+    """``clear_of_walls``, from the cells round each point alone, is the distance from the point's
+    cell centre to the nearest wall cell's centre (near and far), off the grid as told."""
     from navkit.raster import GridFrame
     from navtopo.planning import UnionGrid
 
