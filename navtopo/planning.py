@@ -179,7 +179,7 @@ class UnionGrid:
     frame: GridFrame  # of the cells in the grid's axes (``yaw``): points go through ``to_cell`` / ``to_point``
     yaw: float = 0.0  # the grid's axes in the location's frame: turned so that the walls run along them
     _clearance: dict[str, NDArray[np.uint8]] = field(default_factory=dict)
-    _masks: dict[tuple[str, float, bool], NDArray[np.bool_]] = field(default_factory=dict)
+    _masks: dict[tuple[str, float, bool], NDArray[np.uint8]] = field(default_factory=dict)  # bit-packed
     _parts: dict[tuple[str, float, bool], NDArray[np.integer]] = field(default_factory=dict)
 
     def to_cell(self, xy: NDArray) -> NDArray[np.int64]:
@@ -204,7 +204,7 @@ class UnionGrid:
     def mask(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.bool_]:
         """Cells the robot's centre may take: known free (``known``) or not occupied (``unknown``), eroded
         by ``radius`` (``grid_search.passable``: ``inflate_free``, with cells that touch only diagonally
-        joined), kept once made. One distance transform a kind
+        joined), kept once made, bit-packed (a new array each call). One distance transform a kind
         serves every radius (a first plan asks for two: each its own transform was most of its time);
         it is kept as squared cells in 8 bits, capped at 255 (1.59 m at 0.1 m cells, beyond any
         planning radius; a larger radius gets a transform of its own).
@@ -217,12 +217,12 @@ class UnionGrid:
             radius_cells = radius / self.frame.resolution
             if medial is None and radius_cells * radius_cells > CLEARANCE_CAP - 1:
                 # beyond the 8-bit cap: a transform of its own
-                self._masks[key] = grid_search.passable(
-                    grid_search.clearance_squared(self._free(kind)), radius, self.frame.resolution
-                )
+                made = grid_search.passable(grid_search.clearance_squared(self._free(kind)), radius, self.frame.resolution)
             else:
-                self._masks[key] = grid_search.passable(self._squared(kind), radius, self.frame.resolution, medial)
-        return self._masks[key]
+                made = grid_search.passable(self._squared(kind), radius, self.frame.resolution, medial)
+            self._masks[key] = np.packbits(made, axis=None)
+        cells = np.unpackbits(self._masks[key], count=self.cells.size)
+        return cells.view(np.bool_).reshape(self.cells.shape)
 
     def parts(self, kind: str, radius: float, medial: float | None = None) -> NDArray[np.integer]:
         """(H, W) labels of the connected parts of ``mask(kind, radius, medial)`` (0: not passable),
