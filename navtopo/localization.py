@@ -33,7 +33,7 @@ class LocalizationConfig(BaseModel):
         0.05, ge=0, description="... plus this share of the odometry travelled between them are skipped"
     )
     cache_size: int = Field(
-        12,
+        6,
         ge=1,
         description="prepared vertex grids kept in memory (an LRU cache: the current location, its neighbours and the "
         "candidates being verified; bounded, so that it does not grow with the map)",

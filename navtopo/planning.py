@@ -62,7 +62,7 @@ class PlanningConfig(BaseModel):
     )
     inflation_margin: float = Field(0.1, ge=0, description="beyond the robot radius and half a cell; as the baseline's")
     union_radius: float = Field(25.0, gt=0, description="half the side of the union grid's canvas")
-    union_cache: int = Field(6, ge=1, description="union grids kept (an LRU cache over the neighbourhood)")
+    union_cache: int = Field(3, ge=1, description="union grids kept (an LRU cache over the neighbourhood)")
     target_step: float = Field(0.2, gt=0, description="spacing of the points tried along the global path (lookahead)")
     target_clearance: float = Field(0.05, ge=0, description="a lookahead target keeps this much more than the path's margin")
     target_turn_back: float = Field(
