@@ -149,7 +149,8 @@ class NavTopo:
                 vertex.lidar_hint = pose.copy()
 
     def finish_mapping(self) -> None:
-        pass
+        # shortcuts: a straight line clear for the robot as the planner's tightest level asks
+        self.maintainer.add_shortcuts(self.navigator.local.tight)
 
     def save(self, directory: Path) -> None:
         self.graph.save(Path(directory), extra={"navtopo_config": self.config.model_dump(mode="json")})
