@@ -43,6 +43,7 @@ exists. ``benchmarks/bench_grid_search.py`` measures plan times on 1000^2 and 30
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -100,6 +101,10 @@ def squared_distance_to(blocked: ArrayLike) -> NDArray[np.int32]:
     exact: the kernel of ``clearance_squared``."""
     blocked = np.asarray(blocked, dtype=bool)
     return np.asarray(_squared_distance_kernel(np.ascontiguousarray(~blocked), False))
+
+
+def _searches() -> dict[str, Callable[..., CellPath | None]]:
+    return {"astar": astar_smoothed, "jps": jps_smoothed, "theta_star": theta_star}
 
 
 def far_from(
@@ -1234,3 +1239,8 @@ def _trace_jumps(parent, start, goal, width):
             cells[k, 1] = c
         node = prev
     return cells
+
+
+# the any-angle searches by name (each ``(free, start, goal, sight) -> cells or None``), for the
+# planners' ``search`` settings: chosen by measurement (BENCHMARKS.md)
+SEARCHES = _searches()

@@ -231,16 +231,18 @@ def warped_bounds(
     height, width = cropped.cells.shape
     if height == 0 or width == 0:
         return 0, 0, 0, 0
-    matrix = _warp_matrix(pose, cropped.size, size, resolution)  # output pixel -> input pixel
-    turn = matrix[:, :2].T  # a rotation's inverse is its transpose
-    forward = np.hstack([turn, -turn @ matrix[:, 2:]])
-    xs = np.array([cropped.col0 - 1, cropped.col0 + width, cropped.col0 - 1, cropped.col0 + width], dtype=np.float64)
-    ys = np.array([cropped.row0 - 1, cropped.row0 - 1, cropped.row0 + height, cropped.row0 + height], dtype=np.float64)
-    out = forward @ np.vstack([xs, ys, np.ones(4)])
-    c0 = int(np.clip(np.floor(out[0].min()) - margin, 0, size))
-    c1 = int(np.clip(np.ceil(out[0].max()) + 1 + margin, 0, size))
-    r0 = int(np.clip(np.floor(out[1].min()) - margin, 0, size))
-    r1 = int(np.clip(np.ceil(out[1].max()) + 1 + margin, 0, size))
+    (a, b, tx), (c, d, ty) = _warp_matrix(pose, cropped.size, size, resolution).tolist()  # output pixel -> input pixel
+    # its inverse (a rotation's is its transpose) at the crop's four corners, in plain floats
+    xs, ys = (cropped.col0 - 1, cropped.col0 + width), (cropped.row0 - 1, cropped.row0 + height)
+    corners = [(x - tx, y - ty) for x in xs for y in ys]
+    cols = [a * x + c * y for x, y in corners]
+    rows = [b * x + d * y for x, y in corners]
+
+    def clip(value: float) -> int:
+        return min(max(int(value), 0), size)
+
+    c0, c1 = clip(math.floor(min(cols)) - margin), clip(math.ceil(max(cols)) + 1 + margin)
+    r0, r1 = clip(math.floor(min(rows)) - margin), clip(math.ceil(max(rows)) + 1 + margin)
     return r0, max(r1, r0), c0, max(c1, c0)
 
 

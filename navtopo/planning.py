@@ -63,6 +63,12 @@ class PlanningConfig(BaseModel):
     inflation_margin: float = Field(0.1, ge=0, description="beyond the robot radius and half a cell; as the baseline's")
     union_radius: float = Field(25.0, gt=0, description="half the side of the union grid's canvas")
     union_cache: int = Field(3, ge=1, description="union grids kept (an LRU cache over the neighbourhood)")
+    search: Literal["astar", "jps", "theta_star"] = Field(
+        "jps",
+        description="the local search (navkit.grid_search.SEARCHES, the baseline's): jump point search string-pulled "
+        "to any angle (jps), the same with A* (astar), or Lazy Theta* (theta_star); paths within 0.1 % of each "
+        "other, jps the fastest (BENCHMARKS.md)",
+    )
     target_step: float = Field(0.2, gt=0, description="spacing of the points tried along the global path (lookahead)")
     target_clearance: float = Field(0.05, ge=0, description="a lookahead target keeps this much more than the path's margin")
     target_turn_back: float = Field(
@@ -432,6 +438,16 @@ class LocalPlanner:
         candidates = np.flatnonzero(free[:end] & beyond_next[:end])
         return samples[candidates[-1]] if len(candidates) else route[0]
 
+    def _search(
+        self,
+        level: int,
+        passable: NDArray[np.bool_],
+        start: tuple[int, int],
+        goal: tuple[int, int],
+        sight: NDArray[np.uint8] | None,
+    ) -> NDArray[np.int64] | None:  # plan_path's ``Search``: the configured one on every level
+        return grid_search.SEARCHES[self.config.search](passable, start, goal, sight)
+
     def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
         if there is none, or only one through unknown cells far round (``unknown_detour``).
@@ -470,6 +486,7 @@ class LocalPlanner:
                 # a narrow passage's path is fitted to the scan as found (``narrow_part``)
                 prefer_m=0.0 if medial is not None or not self.config.keep_clear else self.wide + self.config.keep_clear,
                 hold_m=self.tight,
+                search=self._search,
             )
             if found is not None:
                 planned = PlannedPath(found.points, level)

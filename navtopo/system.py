@@ -115,7 +115,7 @@ class NavTopo:
     @staticmethod
     def warm_up() -> None:
         """Load the compiled kernels (grids, matching, planning) before anything is timed."""
-        from navkit.grid_search import far_from, inflate_free, nearest_free, theta_star
+        from navkit.grid_search import SEARCHES, far_from, inflate_free, nearest_free
         from navtopo.local_grid import grid_from_points
         from navtopo.scan_matching import match
 
@@ -125,7 +125,8 @@ class NavTopo:
         match(grid, grid, initial_guess=np.zeros(3))
         free = inflate_free(np.ones((8, 8), bool), 0.1, 0.1)
         nearest_free(free, (0, 0), 2)
-        theta_star(free, (0, 0), (7, 7))
+        for search in SEARCHES.values():  # whichever ``planning.search`` a run's config names
+            search(free, (0, 0), (7, 7))
         far_from(~free, np.array([[1, 1]]), 0.2, 0.1, True)
 
     @property

@@ -36,11 +36,7 @@ from .occupancy import GridMap
 CLEARANCE_CAP = 255  # squared cells
 BLOCKED_TILE = 32  # cells: new obstacles' masks are remade tile by tile
 SIGHT_REACH = 16  # cells: with new obstacles, line of sight leaps at most this far from ones remade
-SEARCHES = {  # PlanningConfig.search
-    "astar": grid_search.astar_smoothed,
-    "jps": grid_search.jps_smoothed,
-    "theta_star": grid_search.theta_star,
-}
+SEARCHES = grid_search.SEARCHES  # PlanningConfig.search
 
 
 class GridPlanner:
