@@ -177,8 +177,8 @@ CLEARANCE_CAP = 255  # squared cells: a union grid's clearance is kept in 8 bits
 @dataclass
 class UnionGrid:
     """A location's grid united with its neighbours', in the location's frame, cropped to the known
-    cells; the clearance of each kind of free space and the distance to mapped walls are made on
-    first use."""
+    cells; the clearance of each kind of free space, its passable masks (bit-packed) and their parts
+    are made on first use; points are told clear of the walls from the cells round them."""
 
     vertex: int
     cells: NDArray[np.uint8]  # (H, W) UNKNOWN / FREE / OCCUPIED
