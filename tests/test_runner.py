@@ -109,6 +109,22 @@ def test_run_refuses_a_malformed_scenario_before_writing_anything(tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+def test_run_refuses_more_trials_than_the_scenario_lists_before_writing_anything(tmp_path):
+    """``--trials`` above a scene's count is refused in one line naming the file and its count, never
+    silently capped; at the count it runs (here 0 trials asked of a scene: mapping only is allowed)."""
+    from scenarios.scenario import load_scenario
+
+    listed = len(load_scenario("tiny").trials)
+    result = CliRunner().invoke(
+        app, ["run", "tiny", "--systems", "oracle", "--trials", str(listed + 1), "--results", str(tmp_path / "r")]
+    )
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"--trials {listed + 1}: " in lines[0] and f"lists {listed} trials" in lines[0]
+    assert "tiny" in lines[0] and "Traceback" not in result.output
+    assert not (tmp_path / "r").exists()
+
+
 def test_scenario_show_json_reports_the_contract_keys():
     result = CliRunner().invoke(app, ["scenario", "show", "tiny", "--json"])
     assert result.exit_code == 0

@@ -49,6 +49,12 @@ def new_runs(request: RunRequest) -> None:
     names = request.system_list
     overrides = read_overrides(request.config_file, names) if request.config_file is not None else None
     loaded = [open_scenario(name) for name in request.scenarios]
+    for scenario in loaded:  # more trials than a scene lists: refused, never silently capped
+        if request.trials is not None and request.trials > len(scenario.trials):
+            raise Refused(
+                f"--trials {request.trials}: {scenario.path} lists {len(scenario.trials)} trials; "
+                f"ask for at most {len(scenario.trials)}, or add trials to the scenario file"
+            )
     if request.maps_from is not None:
         check_maps_from(request, loaded[0])
     todo = [
