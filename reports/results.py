@@ -158,6 +158,8 @@ class Run:
         root = Path(root)
         missing: list[str] = []
         manifest_path = root / "manifest.json"
+        if not root.exists():
+            raise RunFormatError(f"{root}: no such folder")
         if not manifest_path.is_file():
             raise RunFormatError(f"{root}: not a run folder (manifest.json missing)")
         manifest = validate(Manifest, read_json(manifest_path), manifest_path)

@@ -263,6 +263,8 @@ def plot_graph_command(
         run = Run.load(run_dir, require_summary=False)
     except RunFormatError as exc:  # not a BenchError yet (reports/results.py)
         raise Refused(str(exc)) from None
+    if system not in run.manifest.systems:
+        raise Refused(f"--system {system}: {run_dir} ran {', '.join(run.manifest.systems)}, not {system}")
     if run.map_kind(system) != "graph":
         raise Refused(f"{run_dir}: no graph map of {system} (maps/{system}/graph.json missing)")
     plot = plot_graph_map(run, system, output.parent, name=output.stem)

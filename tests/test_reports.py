@@ -366,6 +366,11 @@ def test_plot_graph_draws_a_graph_map_as_png_and_svg(crafted, tmp_path):
     assert (tmp_path / "graph.png").stat().st_size > 1000 and (tmp_path / "graph.svg").is_file()
     result = CliRunner().invoke(app, ["plot-graph", str(crafted), "-o", str(tmp_path / "g.png"), "--system", "metric_grid"])
     assert result.exit_code == 2 and "no graph map of metric_grid" in result.output
+    # a system the run did not run, and a folder that is not there: each its own line
+    result = CliRunner().invoke(app, ["plot-graph", str(crafted), "-o", str(tmp_path / "g.png"), "--system", "foo"])
+    assert result.exit_code == 2 and "--system foo: " in result.output and "not foo" in result.output
+    result = CliRunner().invoke(app, ["report", str(tmp_path / "nowhere")])
+    assert result.exit_code == 2 and f"{tmp_path / 'nowhere'}: no such folder" in result.output
 
 
 def test_the_readme_section_is_the_runs_own_table_and_plots(crafted, tmp_path):
