@@ -103,10 +103,6 @@ def squared_distance_to(blocked: ArrayLike) -> NDArray[np.int32]:
     return np.asarray(_squared_distance_kernel(np.ascontiguousarray(~blocked), False))
 
 
-def _searches() -> dict[str, Callable[..., CellPath | None]]:
-    return {"astar": astar_smoothed, "jps": jps_smoothed, "theta_star": theta_star}
-
-
 def far_from(
     blocked: NDArray[np.bool_], cells: ArrayLike, radius_m: float, resolution: float, outside: bool
 ) -> NDArray[np.bool_]:
@@ -1243,4 +1239,4 @@ def _trace_jumps(parent, start, goal, width):
 
 # the any-angle searches by name (each ``(free, start, goal, sight) -> cells or None``), for the
 # planners' ``search`` settings: chosen by measurement (BENCHMARKS.md)
-SEARCHES = _searches()
+SEARCHES: dict[str, Callable[..., CellPath | None]] = {"astar": astar_smoothed, "jps": jps_smoothed, "theta_star": theta_star}

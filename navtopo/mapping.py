@@ -199,6 +199,11 @@ class MappingCounters:
     reasons: dict[str, int] = field(default_factory=dict)
 
 
+def largest_sigma(covariance: NDArray[np.float64]) -> float:
+    """The standard deviation (m) along the largest axis of a pose covariance's position part."""
+    return float(np.sqrt(np.linalg.eigvalsh(np.asarray(covariance, dtype=np.float64)[:2, :2])[-1]))
+
+
 def moved_enough(since: NDArray[np.float64], odom: NDArray[np.float64], config: MappingConfig) -> bool:
     """The update cadence: ``update_distance`` of motion or ``update_angle_deg`` of turning from the
     odometry pose ``since`` to ``odom`` (the maintainer's updates and the start-up's looks)."""
@@ -519,7 +524,7 @@ class GraphMaintainer:
             if self._claims_seen_only and not self._sees(vertex, located.pose):
                 continue
             pose_cv, covariance_cv = self._through(self.pose_in_current, self.pose_covariance, located)
-            if float(np.sqrt(np.linalg.eigvalsh(covariance_cv[:2, :2])[-1])) > config.closure_max_sigma:
+            if largest_sigma(covariance_cv) > config.closure_max_sigma:
                 continue
             key = (self.current, vertex)
             pending = self._pending_closures.get(key)
@@ -580,7 +585,7 @@ class GraphMaintainer:
                 if located is None or located.result.covariance is None:
                     continue
                 covariance = np.asarray(located.result.covariance, dtype=np.float64)
-                if float(np.sqrt(np.linalg.eigvalsh(covariance[:2, :2])[-1])) > config.shortcut_max_sigma:
+                if largest_sigma(covariance) > config.shortcut_max_sigma:
                     continue
                 way = self._way_between(u, v, located.pose, clearance)
                 straight = float(np.hypot(located.pose[0], located.pose[1]))
