@@ -72,16 +72,18 @@ class GridFrame:
     def to_cell(self, xy: ArrayLike) -> NDArray[np.int64]:
         """Points (2,) or (..., 2) [x, y] -> the cells [row, col] containing them (no bounds check)."""
         xy = np.asarray(xy, dtype=np.float64)
-        col = np.floor((xy[..., 0] - self.origin[0]) / self.resolution) + self.origin_cell[1]
-        row = np.floor((xy[..., 1] - self.origin[1]) / self.resolution) + self.origin_cell[0]
-        return np.stack([row, col], axis=-1).astype(np.int64)
+        cells = np.empty(xy.shape, np.int64)  # filled in place: np.stack costs more than the sums here
+        cells[..., 0] = np.floor((xy[..., 1] - self.origin[1]) / self.resolution) + self.origin_cell[0]
+        cells[..., 1] = np.floor((xy[..., 0] - self.origin[0]) / self.resolution) + self.origin_cell[1]
+        return cells
 
     def to_world(self, cells: ArrayLike) -> NDArray[np.float64]:
         """Cells (2,) or (..., 2) [row, col] -> their centres [x, y]."""
         cells = np.asarray(cells, dtype=np.float64)
-        x = self.origin[0] + (cells[..., 1] - self.origin_cell[1] + 0.5) * self.resolution
-        y = self.origin[1] + (cells[..., 0] - self.origin_cell[0] + 0.5) * self.resolution
-        return np.stack([x, y], axis=-1)
+        xy = np.empty(cells.shape, np.float64)
+        xy[..., 0] = self.origin[0] + (cells[..., 1] - self.origin_cell[1] + 0.5) * self.resolution
+        xy[..., 1] = self.origin[1] + (cells[..., 0] - self.origin_cell[0] + 0.5) * self.resolution
+        return xy
 
     def centres(self, mask: NDArray[np.bool_]) -> NDArray[np.float64]:
         """(N, 2) [x, y] centres of the set cells of a ``[row, col]`` mask, in row-major order."""

@@ -128,6 +128,11 @@ def goal_in_graph(
     return chosen, local[chosen]
 
 
+def _same_point(a: NDArray, b: NDArray) -> bool:
+    """Two points (2,) the same but for rounding (a micrometre): ``np.allclose`` costs more."""
+    return abs(float(a[0]) - float(b[0])) <= 1e-6 and abs(float(a[1]) - float(b[1])) <= 1e-6
+
+
 def goal_held(graph: TopologicalGraph, vertex: int, pose: NDArray, grid_config: GridConfig) -> bool:
     """Does the goal ``pose`` (2,) in ``vertex``'s frame lie in that location's known free space?"""
     row, col = grid_frame(grid_config).to_cell(np.asarray(pose, dtype=np.float64)[None, :2])[0]
@@ -436,7 +441,7 @@ class Navigator:
             union = self.unions.get(vertex)
             target = self.local.target(union, pose, points, self._recent_obstacles())
             planned = self.local.plan(union, pose, target, self._recent_obstacles())
-            if planned is None and not np.allclose(target, points[0]):  # a shorter reach: the next vertex
+            if planned is None and not _same_point(target, points[0]):  # a shorter reach: the next vertex
                 target = points[0]
                 planned = self.local.plan(union, pose, target, self._recent_obstacles())
             self.counters["plans"] += 1
@@ -463,8 +468,8 @@ class Navigator:
         self._route = route
         self._path_vertex = vertex
         self._plan_stamp = obs.stamp
-        self._target_is_goal = bool(np.allclose(target, goal_point[0]))
-        self._goal_short = self._target_is_goal and not np.allclose(planned.points[-1], target)
+        self._target_is_goal = _same_point(target, goal_point[0])
+        self._goal_short = self._target_is_goal and not _same_point(planned.points[-1], target)
         self.follower.set_path(planned.points)
         kind, radius, medial = self.local.levels[planned.level]
         self._passages().set_path(self.follower.path, None if medial is None else union.passable_at(kind, radius))

@@ -24,6 +24,7 @@ Frames: a union grid is centred on ``v_cur``'s observation point and axis-aligne
 
 from __future__ import annotations
 
+import math
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -586,9 +587,12 @@ def _turned(xy: NDArray, yaw: float) -> NDArray[np.float64]:
     """Points (..., 2) turned by ``yaw`` about the origin."""
     if yaw == 0.0:
         return np.asarray(xy, dtype=np.float64).copy()
-    c, s = np.cos(yaw), np.sin(yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
     x, y = xy[..., 0], xy[..., 1]
-    return np.stack([c * x - s * y, s * x + c * y], axis=-1)
+    turned = np.empty(np.shape(xy), np.float64)
+    turned[..., 0] = c * x - s * y
+    turned[..., 1] = s * x + c * y
+    return turned
 
 
 def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
