@@ -192,6 +192,7 @@ class Protocol(Record):
     stop_tolerance: Number = 0.35
     goal_tolerance: Number = 0.5
     goals: str = "map"
+    initial_pose: str = "perturbed"
 
 
 class Manifest(Record):
@@ -214,8 +215,10 @@ class Manifest(Record):
 
     @property
     def setting_name(self) -> str:
-        """The run's setting; a run without one used the scenario file's own noise."""
-        return self.setting or ("precise" if self.odometry_noise is None and not self.range_noise else "file")
+        """The run's setting; a run without one used the scenario file's own noise. A kidnapped start
+        (the protocol's ``initial_pose: none``) is named beside it: its rows are not the default's."""
+        name = self.setting or ("precise" if self.odometry_noise is None and not self.range_noise else "file")
+        return f"{name}, kidnapped" if self.protocol is not None and self.protocol.initial_pose == "none" else name
 
 
 # --- mapping/<system>.json ---------------------------------------------------------------------
@@ -288,6 +291,8 @@ class TrialRecord(Record):
     efficiency: Number | None = None
     spl: Number = 0.0
     efficiency_to_goal: Number | None = None
+    efficiency_after_startup: Number | None = None  # from where it committed to its pose, over the metres after
+    efficiency_mapped_world: Number | None = None  # world.changes: against the shortest path in the world as mapped
     collisions: int = 0
     sim_time_s: Number | None = None
     compute_s: Number | None = None
@@ -299,7 +304,7 @@ class TrialRecord(Record):
     memory: Memory | None = None
     final_distance_m: Number | None = None
     seed: int | None = None
-    startup_localization: dict[str, Any] | None = None  # graph systems: checked against the truth
+    startup_localization: dict[str, Any] | None = None  # the system's first localization, checked against the truth
     goal_conversion_error_m: Number | None = None
     worker: dict[str, Any] | None = None  # where it ran (host, pid, node); None if no worker did
 
@@ -357,6 +362,8 @@ class SystemSummary(Record):
     success_rate: Number | None = None
     efficiency_mean: Number | None = None
     efficiency_to_goal_mean: Number | None = None
+    efficiency_after_startup_mean: Number | None = None
+    efficiency_mapped_world_mean: Number | None = None
     spl_mean: Number | None = None
     planning_ms: Stats = Field(default_factory=Stats)
     first_plan_ms: Stats = Field(default_factory=Stats)

@@ -61,6 +61,8 @@ def reproduce_command(run: Run, config_file: str) -> str:
     parts += ["--stop-tolerance", f"{p.stop_tolerance:g}"]
     if p.goals != "map":
         parts += ["--goals", p.goals]
+    if p.initial_pose != "perturbed":
+        parts += ["--initial-pose", p.initial_pose]
     if m.config:
         parts += ["--config", config_file]
     return " ".join(parts)

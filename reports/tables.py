@@ -48,6 +48,8 @@ class Row:
     success_rate_ci: Interval = None
     efficiency: float | None = None
     efficiency_ci: Interval = None
+    efficiency_after_startup: float | None = None  # from where each trial's start-up committed
+    startup: dict[str, float | int | None] = field(default_factory=dict)  # right, wrong, seconds and metres (medians)
     spl: float | None = None
     spl_ci: Interval = None
     first_plan_ms_median: float | None = None
@@ -130,6 +132,8 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
                 counts = stages.setdefault(r.reason or "failed", {})
                 counts[r.failure_stage] = counts.get(r.failure_stage, 0) + 1
     efficiencies = [r.efficiency for r in successes if r.efficiency is not None]
+    after = [r.efficiency_after_startup for r in successes if r.efficiency_after_startup is not None]
+    startups = [r.startup_localization for r in records if r.startup_localization]
     first = [r.first_plan_ms for r in records if r.first_plan_ms is not None]
     per_trial_calls = [r.planning_ms_samples for r in records if r.planning_ms_samples]
     calls = [v for samples in per_trial_calls for v in samples]
@@ -153,6 +157,17 @@ def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
         success_rate_ci=bootstrap([1.0 if r.success else 0.0 for r in records]),
         efficiency=float(np.mean(efficiencies)) if efficiencies else None,
         efficiency_ci=bootstrap(efficiencies),
+        efficiency_after_startup=float(np.mean(after)) if after else None,
+        startup=(
+            {
+                "right": sum(1 for s in startups if s.get("right")),
+                "wrong": sum(1 for s in startups if not s.get("right")),
+                "seconds": _median([s["seconds"] for s in startups if s.get("seconds") is not None]),
+                "metres": _median([s["metres"] for s in startups if s.get("metres") is not None]),
+            }
+            if startups
+            else {}
+        ),
         spl=float(np.mean([r.spl for r in records])) if records else None,
         spl_ci=bootstrap([r.spl for r in records]),
         first_plan_ms_median=_median(first),
@@ -214,6 +229,17 @@ def failures_text(row: Row) -> str:
     return ", ".join(parts) or "none"
 
 
+def startup_text(row: Row) -> str:
+    """``19 right, 0 wrong; 0.0 s, 0.00 m; 0.991``: the start-ups checked against the truth, the
+    median seconds and metres driven before each, and the efficiency from where each committed."""
+    s = row.startup
+    if not s:
+        return "–"
+    seconds = "–" if s.get("seconds") is None else f"{s['seconds']:.1f} s"
+    metres = "–" if s.get("metres") is None else f"{s['metres']:.2f} m"
+    return f"{s['right']} right, {s['wrong']} wrong; {seconds}, {metres}; {num(row.efficiency_after_startup)}"
+
+
 def stage_totals(row: Row) -> dict[str, int]:
     """Failures by stage over every reason, most first."""
     totals: dict[str, int] = {}
@@ -233,6 +259,7 @@ def cells(row: Row) -> dict[str, str]:
             "success": "–",
             "failures": "–",
             "efficiency": num(row.efficiency, 2),
+            "startup": "–",
             "spl": "–",
             "first_plan": "–",
             "planning": f"{ms(row.planning_ms_median)}",
@@ -255,6 +282,7 @@ def cells(row: Row) -> dict[str, str]:
         "success": rate,
         "failures": failures_text(row),
         "efficiency": with_ci(num(row.efficiency), row.efficiency_ci, lambda v: f"{v:.3f}"),
+        "startup": startup_text(row),
         "spl": with_ci(num(row.spl), row.spl_ci, lambda v: f"{v:.3f}"),
         "first_plan": with_ci(ms(row.first_plan_ms_median), row.first_plan_ms_median_ci, ms) + f" / {ms(row.first_plan_ms_p95)}",
         "planning": with_ci(ms(row.planning_ms_median), row.planning_ms_median_ci, ms) + f" / {ms(row.planning_ms_p95)}",
@@ -272,6 +300,7 @@ HEADERS = {
     "success": "success [95 % CI]",
     "failures": "failures (by stage)",
     "efficiency": "efficiency [95 % CI]",
+    "startup": "start-up: right, wrong; median s, m driven; efficiency after it",
     "spl": "SPL [95 % CI]",
     "first_plan": "first plan ms: median [95 % CI] / p95",
     "planning": "planning ms, all calls: median [95 % CI] / p95",
@@ -346,6 +375,11 @@ CSV_FIELDS = [
     "mapping_ms_per_scan_median",
     "mapping_ms_per_scan_p95",
     "note",
+    "efficiency_after_startup",
+    "startup_right",
+    "startup_wrong",
+    "startup_seconds_median",
+    "startup_metres_median",
 ]
 
 
@@ -386,6 +420,11 @@ def csv_rows(rows: list[Row]) -> list[dict[str, str]]:
             "mapping_ms_per_scan_median": row.mapping_ms_per_scan_median,
             "mapping_ms_per_scan_p95": row.mapping_ms_per_scan_p95,
             "note": row.note,
+            "efficiency_after_startup": row.efficiency_after_startup,
+            "startup_right": row.startup.get("right"),
+            "startup_wrong": row.startup.get("wrong"),
+            "startup_seconds_median": row.startup.get("seconds"),
+            "startup_metres_median": row.startup.get("metres"),
         }
         for part in MEMORY_PARTS:
             value = row.memory.get(part)

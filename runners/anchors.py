@@ -56,25 +56,9 @@ class Anchors:
                 break
         return stamps[chosen], se2.transform_points(se2.inverse(poses[chosen]), np.asarray(goal, float)[None, :2])[0]
 
-    def judge(self, stats: dict[str, Any], true_at: dict[float, NDArray], goal: NDArray, tolerance: float) -> dict[str, Any]:
-        """The system's start-up localization and goal conversion against the truth (diagnostics)."""
+    def judge(self, stats: dict[str, Any], goal: NDArray) -> dict[str, Any]:
+        """The system's goal conversion against the truth (diagnostics)."""
         out: dict[str, Any] = {}
-        localizations = stats.get("localizations") or []
-        if localizations:
-            first = localizations[0]
-            estimate = self.locate((first["vertex_stamp"], np.asarray(first["pose"])))
-            truth = true_at.get(first["stamp"])
-            if estimate is not None and truth is not None:
-                error = float(se2.distance(estimate, truth))
-                yaw = float(np.degrees(abs(float(se2.wrap_angle(estimate[2] - truth[2])))))
-                out["startup_localization"] = {
-                    "seconds": first.get("seconds"),
-                    "error_m": round(error, 4),
-                    "yaw_error_deg": round(yaw, 3),
-                    "right": bool(error <= tolerance and yaw <= 15.0),
-                    "looks": first.get("looks"),
-                    "hypotheses": first.get("hypotheses"),
-                }
         goal_estimate = stats.get("goal")
         if goal_estimate:
             anchor = self.poses.get(round(float(goal_estimate["vertex_stamp"]), 6))

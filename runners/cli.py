@@ -33,6 +33,7 @@ from runners.commands.errors import Refused, ReportFailed, RunsFailed
 from runners.commands.jobs import ExecutorOption, RayAddressOption, WorkersOption
 from runners.commands.request import (
     DEFAULT_GOALS,
+    DEFAULT_INITIAL_POSE,
     DEFAULT_INITIAL_POSE_ERROR,
     DEFAULT_STOP_TOLERANCE,
     DEFAULT_SYSTEMS,
@@ -149,6 +150,13 @@ def run(
         str,
         typer.Option(help="XY_M,YAW_DEG: uniform error of the initial pose given to systems that take one (0,0: exact)"),
     ] = DEFAULT_INITIAL_POSE_ERROR,
+    initial_pose: Annotated[
+        str,
+        typer.Option(
+            help="perturbed: systems that take an initial pose get the start with --initial-pose-error (NavTopo as "
+            "its start-up's prior); none: kidnapped, every system localizes globally on its own map"
+        ),
+    ] = DEFAULT_INITIAL_POSE,
     stop_tolerance: Annotated[
         float,
         typer.Option(
@@ -204,6 +212,7 @@ def run(
         config_file=config_file,
         setting=setting,
         initial_pose_error=initial_pose_error,
+        initial_pose=initial_pose,
         stop_tolerance=stop_tolerance,
         goals=goals,
         maps_from=maps_from,

@@ -182,6 +182,12 @@ def summarize(
             success_rate=round(len(successes) / len(mine), 6) if mine else None,
             efficiency_mean=_mean_or_none([r.efficiency for r in successes]),
             efficiency_to_goal_mean=_mean_or_none([r.efficiency_to_goal for r in successes if r.efficiency_to_goal is not None]),
+            efficiency_after_startup_mean=_mean_or_none(
+                [r.efficiency_after_startup for r in successes if r.efficiency_after_startup is not None]
+            ),
+            efficiency_mapped_world_mean=_mean_or_none(
+                [r.efficiency_mapped_world for r in successes if r.efficiency_mapped_world is not None]
+            ),
             spl_mean=_mean_or_none([r.spl for r in mine]),
             planning_ms=stats_ms([v for r in mine for v in r.planning_ms_samples]),
             first_plan_ms=stats_ms([r.first_plan_ms for r in mine if r.first_plan_ms is not None]),
@@ -222,11 +228,14 @@ def _localization_summary(records: list[TrialRecord]) -> dict[str, Any]:
     found = [r.startup_localization for r in records if r.startup_localization]
     if found or any(r.reason == "not_localized" for r in records):
         seconds = [f["seconds"] for f in found if f.get("seconds") is not None]
+        metres = [f["metres"] for f in found if f.get("metres") is not None]
         out["startup_localization"] = {
             "right": sum(1 for f in found if f["right"]),
             "wrong": sum(1 for f in found if not f["right"]),
             "not_localized": sum(1 for r in records if r.reason == "not_localized"),
             "seconds": stats_ms(seconds).as_json() if seconds else None,
+            "metres": stats_ms(metres).as_json() if metres else None,
+            "from_given_pose": sum(1 for f in found if f.get("given_pose")),
             "error_m_median": round(float(np.median([f["error_m"] for f in found])), 4) if found else None,
         }
     errors = [r.goal_conversion_error_m for r in records if r.goal_conversion_error_m is not None]

@@ -46,6 +46,7 @@ from runners.metrics import (
     STUCK_DISTANCE_M,
     STUCK_WINDOW_S,
     disk_report,
+    efficiency,
     failure_stage,
     judge,
     timeout_s,
@@ -58,6 +59,7 @@ from runners.results import MAP_FRAME_FILE, RunDir, write_map_frame, write_tum
 from runners.sim import TRIAL_STREAM, Simulator
 from runners.systems import NavigationSystem, Status, SystemEntry, get_system, import_modules
 from scenarios import Scenario, load_scenario
+from scenarios.route_space import polyline_length, shortest_path
 
 
 class SavedMapError(BenchError):
@@ -317,7 +319,11 @@ def run_one_trial(
         traceback.print_exc()
     rows = sim.trajectory_array()
     memory = _memory(system)
-    diagnostics = None if anchors is None else anchors.judge(outcome.stats, tracking.true_at, trial.goal, protocol.goal_tolerance)
+    diagnostics = {} if anchors is None else anchors.judge(outcome.stats, trial.goal)
+    startup = startup_check(outcome.stats, tracking, rows, protocol.goal_tolerance)
+    if startup is not None:
+        diagnostics["startup_localization"] = startup
+    diagnostics.update(extra_efficiencies(scenario, trial, rows, startup if outcome.success else None, outcome.success))
     record = trial_record(
         entry.name,
         index,
@@ -343,6 +349,72 @@ def run_one_trial(
     return record, rows, np.asarray(tracking.estimate_rows) if tracking.estimate_rows else None
 
 
+STARTUP_YAW_DEG = 15.0  # a start-up is right within the goal tolerance and this many degrees
+
+
+def startup_check(stats: dict[str, Any], tracking: Tracking, rows: NDArray, tolerance: float) -> dict[str, Any] | None:
+    """The system's start-up localization (its first, ``stats["localizations"][0]``) against the
+    truth: seconds, metres driven before it, its error, right or wrong, whether it came from the given
+    pose. A graph system names the location (``vertex_stamp``, placed by the anchors), a metric one
+    gives its map-frame pose (``map_pose``). None: the system reported none."""
+    localizations = stats.get("localizations") or []
+    if not localizations:
+        return None
+    first = localizations[0]
+    estimate: NDArray[np.float64] | None
+    if "map_pose" in first:
+        estimate = se2.compose(tracking.world_from_map, np.asarray(first["map_pose"], dtype=np.float64))
+    elif tracking.anchors is not None:
+        estimate = tracking.anchors.locate((first["vertex_stamp"], np.asarray(first["pose"])))
+    else:
+        return None
+    truth = tracking.true_at.get(first["stamp"])
+    if estimate is None or truth is None:
+        return None
+    error = float(se2.distance(estimate, truth))
+    yaw = float(np.degrees(abs(float(se2.wrap_angle(estimate[2] - truth[2])))))
+    before = rows[rows[:, 0] <= first["stamp"] + 1e-9] if len(rows) else rows
+    return {
+        "seconds": first.get("seconds"),
+        "metres": round(trajectory_length(before), 4) if len(before) else 0.0,
+        "error_m": round(error, 4),
+        "yaw_error_deg": round(yaw, 3),
+        "right": bool(error <= tolerance and yaw <= STARTUP_YAW_DEG),
+        "given_pose": bool(first.get("given_pose", False)),
+        "stamp": first["stamp"],
+        **{k: first[k] for k in ("looks", "hypotheses") if k in first},
+    }
+
+
+def extra_efficiencies(
+    scenario: Scenario, trial: Any, rows: NDArray, startup: dict[str, Any] | None, success: bool
+) -> dict[str, Any]:
+    """A successful trial's efficiency from the moment the system committed to its pose
+    (``efficiency_after_startup``: the true shortest path from where the robot was then, over the
+    metres driven after), and, on a scene with ``world.changes``, against the shortest path in the
+    world as it was mapped (``efficiency_mapped_world``: what discovering the change cost)."""
+    out: dict[str, Any] = {}
+    if not success or not len(rows):
+        return out
+    travelled = trajectory_length(rows)
+    if startup is not None:
+        before = rows[rows[:, 0] <= startup["stamp"] + 1e-9]
+        driven = trajectory_length(before) if len(before) else 0.0
+        if driven < 0.05:  # committed where it started: the trial's own figure
+            out["efficiency_after_startup"] = round(efficiency(trial.shortest_m, travelled), 6)
+        else:
+            at = before[-1, 1:3]
+            path = shortest_path(scenario.navigation_world, scenario.navigation_passable, at, trial.goal)
+            if path is not None:
+                shortest = polyline_length(path)
+                out["efficiency_after_startup"] = round(efficiency(shortest, travelled - driven), 6)
+    if scenario.navigation_world is not scenario.world:
+        path = shortest_path(scenario.world, scenario.passable, trial.start[:2], trial.goal)
+        if path is not None:
+            out["efficiency_mapped_world"] = round(efficiency(polyline_length(path), travelled), 6)
+    return out
+
+
 def start_trial(
     scenario: Scenario,
     entry: SystemEntry,
@@ -360,7 +432,7 @@ def start_trial(
     reset = getattr(system, "reset", None)
     if reset is not None:
         reset()  # nothing of the previous trial in this worker carries over
-    if entry.wants_initial_pose:
+    if entry.wants_initial_pose and protocol.gives_pose:
         true_start = se2.between(world_from_map, trial.start)
         outcome.initial_error = protocol.initial_pose_error(seed, index)
         system.set_initial_pose(protocol.given_initial_pose(true_start, seed, index))

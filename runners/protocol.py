@@ -1,12 +1,14 @@
 """One protocol for every compared system: what each is told at a trial's start, when it may say
 "reached", and the two benchmark settings (DESIGN.md, "The NavigationSystem protocol").
 
-* Initial pose. A system whose entry ``wants_initial_pose`` gets the trial's start in the map
-  frame perturbed by a seeded error, as a person setting it by hand would: uniform in
-  ``±initial_pose_error_xy`` metres along x and y and ``±initial_pose_error_yaw_deg`` degrees
-  (default ±0.5 m, ±10°; 0 gives the exact start). It must correct the error by its own
-  registration. The error of trial i depends on (seed, trial) only, so it is the same with any
-  number of workers, on resume, and for every system. Systems without the flag get nothing.
+* Initial pose, two protocols (``initial_pose``). ``perturbed`` (default): a system whose entry
+  ``wants_initial_pose`` gets the trial's start in the map frame perturbed by a seeded error, as a
+  person setting it by hand would: uniform in ``±initial_pose_error_xy`` metres along x and y and
+  ``±initial_pose_error_yaw_deg`` degrees (default ±0.5 m, ±10°; 0 gives the exact start). It must
+  correct the error by its own registration (NavTopo takes it as a prior for its start-up). The
+  error of trial i depends on (seed, trial) only, so it is the same with any number of workers, on
+  resume, and for every system. Systems without the flag get nothing. ``none`` (kidnapped): no
+  system gets a pose; each localizes globally on its own map and confirms it over motion.
 * Stop tolerance. Every system that declares ``reached`` by its own estimate uses one tolerance
   (``stop_tolerance``, 0.35 m); the runner's STOP rule (success) stays ``goal_tolerance`` (0.5 m)
   on the true pose.
@@ -42,6 +44,8 @@ if TYPE_CHECKING:
     from runners.sim import Simulator
 
 INITIAL_POSE_SALT = 0x1A17  # keeps the initial-pose stream apart from the sensor noise streams
+INITIAL_POSES = ("perturbed", "none")
+TEXT_FIELDS = ("goals", "initial_pose")
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,7 @@ class TrialProtocol:
     stop_tolerance: float = 0.35  # m, systems that say "reached" by their own estimate
     goal_tolerance: float = GOAL_TOLERANCE_M  # m, the runner's STOP rule on the true pose
     goals: str = "map"  # "map": map-frame points for all; "native": location-relative for graph systems
+    initial_pose: str = "perturbed"  # INITIAL_POSES: "perturbed" (the start with the error) or "none" (kidnapped)
 
     def as_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -62,8 +67,13 @@ class TrialProtocol:
         if not data:
             return cls(initial_pose_error_xy=0.0, initial_pose_error_yaw_deg=0.0, stop_tolerance=0.5)
         known = {f.name for f in dataclasses.fields(cls)}
-        fields: dict[str, Any] = {k: (str(v) if k == "goals" else float(v)) for k, v in data.items() if k in known}
+        fields: dict[str, Any] = {k: (str(v) if k in TEXT_FIELDS else float(v)) for k, v in data.items() if k in known}
         return cls(**fields)
+
+    @property
+    def gives_pose(self) -> bool:
+        """Whether systems that take an initial pose get one (``perturbed``), or none does (``none``)."""
+        return self.initial_pose == "perturbed"
 
     def initial_pose_error(self, seed: int, trial: int) -> NDArray[np.float64]:
         """(3,) [dx, dy, dyaw] of trial ``trial``: the error added to the true start (map frame)."""

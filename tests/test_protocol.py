@@ -284,6 +284,7 @@ def test_the_manifest_records_the_protocol_and_the_setting(tmp_path):
         "stop_tolerance": 0.35,
         "goal_tolerance": 0.5,
         "goals": "map",
+        "initial_pose": "perturbed",
     }
     bad = CliRunner().invoke(app, ["run", "tiny", "--systems", "oracle", "--setting", "foggy", "--out", str(tmp_path / "x")])
     assert bad.exit_code == 2 and "--setting" in bad.output and not (tmp_path / "x").exists()

@@ -35,6 +35,7 @@ DEFAULT_TRIAL_TIMEOUT_S = 3600.0  # runners.run.DEFAULT_TRIAL_WALL_S
 DEFAULT_INITIAL_POSE_ERROR = "0.5,10"  # XY_M,YAW_DEG
 DEFAULT_STOP_TOLERANCE = 0.35  # m
 DEFAULT_GOALS = "map"
+DEFAULT_INITIAL_POSE = "perturbed"
 GOALS = ("map", "native")
 MAX_TRIAL_MEMORY_MB = 1e9  # 1 PB: RLIMIT_AS counts bytes in 63 bits, and no machine has more
 
@@ -61,6 +62,7 @@ class RunRequest(BaseModel):
     config_file: Path | None = None
     setting: str | None = None
     initial_pose_error: str = DEFAULT_INITIAL_POSE_ERROR
+    initial_pose: str = DEFAULT_INITIAL_POSE
     stop_tolerance: float = DEFAULT_STOP_TOLERANCE
     goals: str = DEFAULT_GOALS
     maps_from: Path | None = None
@@ -76,7 +78,7 @@ class RunRequest(BaseModel):
     def _apply_rules(self) -> RunRequest:
         """Every rule in the command's order; the derived values filled as they are checked."""
         from runners.metrics import GOAL_TOLERANCE_M
-        from runners.protocol import TrialProtocol
+        from runners.protocol import INITIAL_POSES, TrialProtocol
 
         check_executor_flags(self.executor, self.ray_address, self.workers)
         self._system_list = systems_list(self.systems) if self.resume is None else []  # a resume: the manifest's
@@ -88,11 +90,14 @@ class RunRequest(BaseModel):
         check_number("--trial-memory-mb", self.trial_memory_mb, "MB", low=1.0, high=MAX_TRIAL_MEMORY_MB)
         if self.goals not in GOALS:
             raise Refused(f"--goals: {self.goals!r} is not map or native")
+        if self.initial_pose not in INITIAL_POSES:
+            raise Refused(f"--initial-pose: {self.initial_pose!r} is not perturbed or none")
         self._protocol = TrialProtocol(
             initial_pose_error_xy=error_xy,
             initial_pose_error_yaw_deg=error_yaw,
             stop_tolerance=self.stop_tolerance,
             goals=self.goals,
+            initial_pose=self.initial_pose,
         )
         self._seed_list = self._parse_seeds()
         if self.suite is not None:
@@ -148,6 +153,7 @@ class RunRequest(BaseModel):
             ("--initial-pose-error", self.initial_pose_error != DEFAULT_INITIAL_POSE_ERROR),
             ("--stop-tolerance", self.stop_tolerance != DEFAULT_STOP_TOLERANCE),
             ("--goals", self.goals != DEFAULT_GOALS),
+            ("--initial-pose", self.initial_pose != DEFAULT_INITIAL_POSE),
         )
         return [flag for flag, value in given if value]
 
