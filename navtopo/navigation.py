@@ -325,6 +325,7 @@ class Navigator:
                 pose=committed.pose.copy(),
                 looks=startup.looks,
                 hypotheses=startup.seen,
+                given_pose=startup.from_given_pose,
             )
         )
         self._path_vertex = None

@@ -76,7 +76,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d
 
 from navkit.follower import PathFollower
-from navkit.geometry import between, compose, distance_to_polyline, transform_points
+from navkit.geometry import between, compose, distance_to_polyline, transform_points, wrap_angle
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, inside
 from navkit.scan import azimuth_bins, obstacle_points
 from navkit.types import Command, Observation
@@ -159,6 +159,17 @@ class StartupConfig(BaseModel):
     )
     explore_distance: float = Field(1.5, gt=0, description="m: with no hypothesis, drive this far toward open space")
     timeout: float = Field(90.0, gt=0, description="s of simulated time without a commitment: not_localized")
+    prior_search: float = Field(
+        1.5,
+        gt=0,
+        description="m: a given initial pose (map frame) is taken where a match puts the robot at most this far from it "
+        "(its error, and the drift of the locations' map poses) ...",
+    )
+    prior_yaw_deg: float = Field(20.0, gt=0, description="... and at most this many degrees from its heading")
+    prior_locations: int = Field(3, ge=1, description="the locations nearest a given pose that are matched against")
+    prior_distance: float = Field(
+        3.0, ge=0, description="m of motion the given pose is tried for (carried by odometry); then the start-up goes on without"
+    )
 
 
 @dataclass
@@ -211,6 +222,7 @@ class Localization:
     pose: NDArray[np.float64]
     looks: int
     hypotheses: int
+    given_pose: bool = False  # committed from the given initial pose (``Startup.from_prior``)
 
     def as_json(self) -> dict:
         return {
@@ -221,6 +233,7 @@ class Localization:
             "pose": [float(v) for v in self.pose],
             "looks": self.looks,
             "hypotheses": self.hypotheses,
+            "given_pose": self.given_pose,
         }
 
 
@@ -299,6 +312,9 @@ class Startup:
         self.reset()
 
     def reset(self) -> None:
+        self._prior: NDArray[np.float64] | None = None  # the given initial pose, map frame (``set_prior``)
+        self._first_odom: NDArray[np.float64] | None = None  # the odometry at the start-up's first tick
+        self.from_given_pose = False  # the commitment came from the given pose
         self.hypotheses: list[Hypothesis] = []
         self.looks = 0
         self.started: float | None = None
@@ -319,6 +335,48 @@ class Startup:
         self.far_dropped = 0  # looks that counted against a hypothesis by the far evidence alone
         self.far_refused = 0  # verified candidates not made hypotheses by it
 
+    def set_prior(self, pose: NDArray) -> None:
+        """A given initial pose (3,, map frame; the protocol's ``perturbed`` start): tried at each look
+        while the robot has driven under ``prior_distance`` (``from_prior``)."""
+        self._prior = np.asarray(pose, dtype=np.float64).copy()
+
+    def from_prior(self, obs: Observation) -> Hypothesis | None:
+        """A start from the given pose (``set_prior``; the robot now by it, map frame, carried by
+        odometry from the start-up's first tick): the scan matched against the ``prior_locations``
+        locations whose map poses lie nearest it, each from the pose the prior puts the robot at in it
+        (the thresholds with a guess, and the known area shared that a match without one needs: a
+        match that shares less keeps the guess as its pose); the first match that puts the robot within ``prior_search`` and
+        ``prior_yaw_deg`` of the prior, as a committed hypothesis. None: none did (the start-up looks
+        on, the prior tried again at the next look while the robot has driven under ``prior_distance``).
+
+        As a person sets a pose by hand for a metric system: no rival is weighed; the prior rules out
+        every place farther off, look-alikes included."""
+        if self._prior is None or self.map_poses is None or not len(self.map_poses):
+            return None
+        if self._odometer > self.config.prior_distance or self._first_odom is None:
+            return None
+        prior = compose(self._prior, between(self._first_odom, obs.odom))
+        query, _ = self._perceive(obs)
+        localizer, config = self.maintainer.localizer, self.config
+        nearest = np.argsort(np.hypot(*(self.map_poses[:, :2] - prior[:2]).T), kind="stable")[: config.prior_locations]
+        for vertex in (int(v) for v in nearest):
+            guess = between(self.map_poses[vertex], prior)
+            if float(np.hypot(guess[0], guess[1])) > self.maintainer.grid_config.radius:
+                break  # the robot is off that location's grid: farther ones even more so
+            located = localizer.verify(query, vertex, guess, config.prior_search)
+            if located is None or located.result.overlap < localizer.matching.min_overlap:
+                continue  # a match that shares little with the location keeps the guess: no evidence
+            placed = compose(self.map_poses[vertex], located.pose)
+            off_yaw = abs(float(np.degrees(wrap_angle(placed[2] - prior[2]))))
+            if float(np.hypot(*(placed[:2] - prior[:2]))) > config.prior_search or off_yaw > config.prior_yaw_deg:
+                continue
+            tracker = self._tracker(vertex, located.pose, obs.odom)
+            tracker.last_verified = True
+            self.seen += 1
+            self.from_given_pose = True
+            return Hypothesis(tracker, support=1, odometer_start=self._odometer, places={vertex}, alone_since=self._odometer)
+        return None
+
     def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
         m = self.maintainer
         tracker = GraphMaintainer(m.graph, m.describe, m.grid_config, m.matching, m.config, m.localizer.config, False, m.grids)
@@ -338,6 +396,7 @@ class Startup:
         path) from location to location as the committed state would."""
         if self.started is None:
             self.started = obs.stamp
+            self._first_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         if self._last_odom is not None:
             delta = between(self._last_odom, obs.odom)
             self._odometer += float(np.hypot(delta[0], delta[1]))
@@ -348,6 +407,9 @@ class Startup:
             return None
         self._last_look_odom = np.asarray(obs.odom, dtype=np.float64).copy()
         self.looks += 1
+        given = self.from_prior(obs)
+        if given is not None:
+            return given
         self._look(obs, driven, route)
         if self.config.far_evidence and self._odometer >= self._history_at + 1.0:
             self._history_at = self._odometer

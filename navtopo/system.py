@@ -197,6 +197,11 @@ class NavTopo:
         self.navigator.reset()
         self.update_ms = []
 
+    def set_initial_pose(self, pose: NDArray[np.float64]) -> None:
+        """A given start pose (3,, map frame; the protocol's ``perturbed`` start, off by its error): the
+        start-up's prior (``Startup.from_prior``), not taken as true."""
+        self.navigator.startup.set_prior(np.asarray(pose, dtype=np.float64))
+
     def set_goal(self, goal: NDArray[np.float64]) -> None:
         """A map-frame goal (2,), turned into ``(v_goal, T_goal)`` with the vertices' odometry hints."""
         self.navigator.set_goal(np.asarray(goal, dtype=np.float64))

@@ -142,7 +142,10 @@ _BUILTIN: dict[str, tuple[str, str, str, dict[str, Any]]] = {
         "navtopo.system",
         "NavTopo",
         "NavTopoConfig",
-        {"description": "NavTopo: graph of locations (PRISM-TopoMap), place recognition, scan matching"},
+        {
+            "wants_initial_pose": True,
+            "description": "NavTopo: graph of locations (PRISM-TopoMap), place recognition, scan matching",
+        },
     ),
     "metric_grid": (
         "baselines.metric_grid.system",

@@ -270,3 +270,36 @@ def test_identical_rooms_are_told_apart_in_the_corridor_never_guessed_from_insid
             break
     assert most_alive >= 2, "the twin room verified too: the crafted map is aliased"
     assert committed_at is not None, "the corridor tells the rooms apart"
+
+
+@pytest.mark.parametrize("error", [(0.4, -0.3, 8.0), (-0.5, 0.5, -10.0)])
+def test_a_given_start_pose_commits_at_the_first_look_to_the_right_one_of_twin_rooms(twin_rooms, error):
+    """The protocol's ``perturbed`` start: the true pose off by up to 0.5 m and 10°. Inside room A,
+    whose twin verifies as well without a pose, the given pose settles it at once: committed at the
+    first look, to room A, within 0.1 m of the truth (the match's, not the given error)."""
+    graph, places, poses, scans = twin_rooms
+    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
+    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
+    startup = Startup(maintainer, describe, StartupConfig())
+    startup.map_poses = places
+    dx, dy, dyaw = error
+    startup.set_prior(poses[0] + np.array([dx, dy, np.radians(dyaw)]))
+    committed = startup.step(Observation(0.0, scans[0], np.zeros(3)))
+    assert committed is not None and startup.from_given_pose and startup.looks == 1
+    where = se2.compose(places[committed.vertex], committed.pose)
+    assert np.hypot(*(where[:2] - poses[0][:2])) < 0.1
+    assert abs(np.degrees(se2.wrap_angle(where[2] - poses[0][2]))) < 2.0
+
+
+def test_a_given_pose_farther_off_than_the_search_commits_nothing_from_it(twin_rooms):
+    """A given pose 2.5 m off (beyond ``prior_search``): no match near it puts the robot there, so
+    the start-up goes on as without one (no commitment from inside a room with a twin)."""
+    graph, places, poses, scans = twin_rooms
+    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
+    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
+    startup = Startup(maintainer, describe, StartupConfig())
+    startup.map_poses = places
+    startup.set_prior(poses[0] + np.array([0.0, 2.5, 0.0]))
+    for k in range(8):  # the first looks, still inside room A
+        assert startup.step(Observation(0.2 * k, scans[k], se2.between(poses[0], poses[k]))) is None
+    assert not startup.from_given_pose
