@@ -220,6 +220,34 @@ def test_a_start_far_from_the_given_pose_is_found_by_the_global_search(tiny, sim
     assert se2.distance(estimate, truth) < 0.1, (estimate, truth)
 
 
+def test_a_kidnapped_start_is_found_on_the_whole_map_and_confirmed_over_a_turn(tiny, sim, mapped, context):
+    """The protocol's ``none``: no pose given. The whole map is searched as the robot turns in place;
+    the pose is taken only after three finds agree over 90° of turning, and it is the truth's."""
+    _, directory, _ = mapped
+    system = MetricGrid.load(directory, MetricGridConfig(), context)
+    trial = tiny.trials[1]
+    sim.reset(trial.start)
+    system.reset()
+    system.set_goal(se2.transform_points(se2.inverse(tiny.route_start), trial.goal[None, :])[0])
+    found_at, turned = None, 0.0
+    for tick in range(200):
+        truth = se2.between(tiny.route_start, sim.true_pose)
+        obs = sim.observe()
+        command = system.step(obs)
+        if system.tracker.localized:
+            found_at = tick
+            break
+        before = sim.true_pose[2]
+        sim.step(command)
+        turned += abs(se2.wrap_angle(sim.true_pose[2] - before))
+    assert found_at is not None and system.tracker.kidnapped
+    assert system.counters["global_searches"] >= 3 and turned >= np.radians(90.0) - 0.1
+    estimate = system.pose_estimate()
+    assert se2.distance(estimate, truth) < 0.1 and abs(se2.wrap_angle(estimate[2] - truth[2])) < np.deg2rad(1.0)
+    first = system.stats()["localizations"][0]
+    assert first["given_pose"] is False and first["seconds"] > 0
+
+
 def test_without_registration_the_given_error_stays(tiny, sim, mapped, context):
     _, directory, _ = mapped
     config = MetricGridConfig.model_validate({"localization": {"enabled": False}, "relocalization": {"enabled": False}})

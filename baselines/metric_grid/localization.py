@@ -188,6 +188,20 @@ class RelocalizationConfig(BaseModel):
     turn_rate: float = Field(0.6, gt=0, description="rad/s: turn in place to see more while no pose is found")
     timeout: float = Field(30.0, gt=0, description="s of simulated time without a pose: fail with not_localized")
     lost_after: int = Field(15, ge=1, description="consecutive rejected tracking fits before the window search runs again")
+    # a kidnapped start (no initial pose given): the whole map searched, the find confirmed over motion
+    look_turn_deg: float = Field(
+        30.0, gt=0, description="kidnapped: a global search at the first scan and after each this many deg of turning ..."
+    )
+    look_distance: float = Field(0.25, gt=0, description="... or m of motion (odometry)")
+    confirm_looks: int = Field(
+        3, ge=1, description="kidnapped: global finds that must agree (carried by odometry) before the pose is taken ..."
+    )
+    confirm_turn_deg: float = Field(
+        90.0, ge=0, description="... over at least this much turning (different views of the place) or ..."
+    )
+    confirm_distance: float = Field(1.0, ge=0, description="... this many m of motion")
+    confirm_xy: float = Field(0.3, gt=0, description="m: two finds agree when this close, carried to one time by odometry ...")
+    confirm_yaw_deg: float = Field(5.0, gt=0, description="... and this many deg")
 
 
 def _square(centre_xy: NDArray, half: float, step: float) -> NDArray[np.float64]:

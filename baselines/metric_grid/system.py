@@ -427,10 +427,25 @@ class MetricGrid:
         return planned.points
 
     def stats(self) -> dict[str, Any]:
+        tracker = self.tracker
+        localizations = []
+        if tracker.localized_at is not None and tracker.localized_pose is not None:
+            # the pose found on the map at the start (the runner checks it against the truth)
+            started = tracker.localize_started if tracker.localize_started is not None else tracker.localized_at
+            localizations.append(
+                {
+                    "started": started,
+                    "stamp": tracker.localized_at,
+                    "seconds": round(tracker.localized_at - started, 3),
+                    "map_pose": [float(v) for v in tracker.localized_pose],
+                    "given_pose": not tracker.kidnapped,
+                }
+            )
         return {
             "planning_ms": list(self.planning_ms),
             "map_bytes": int(self.grid_map.nbytes) if self.grid_map is not None else 0,
             "counters": self.counters,
+            "localizations": localizations,
         }
 
     def memory(self) -> MemoryBreakdown:

@@ -10,6 +10,14 @@ accepted fit moves ``map_from_odom``; after ``lost_after`` rejected fits in a ro
 the estimate is searched again. The tracker is ``lost`` from a window search that finds nothing to
 the next accepted fit (the system's failure stage ``localization`` meanwhile).
 
+Kidnapped (the protocol's ``initial_pose: none``: no pose given): the whole map is searched at the
+first scan and after every ``look_turn_deg`` of turning or ``look_distance`` of motion; a find that
+agrees with the last one carried by odometry (``confirm_xy``, ``confirm_yaw_deg``) confirms it, one
+that does not replaces it, and a search that finds nothing (no fit, or two places that fit about as
+well) is no evidence either way. The pose is taken after ``confirm_looks`` agreeing finds spread
+over ``confirm_turn_deg`` of turning or ``confirm_distance`` of motion: one view of a place can fit
+a look-alike elsewhere, its other views rarely do as well.
+
 Poses are map-frame ``[x, y, yaw]`` float64; scans are (N, 2) obstacle points in the robot frame.
 """
 
@@ -26,7 +34,25 @@ from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMa
 from .occupancy import GridMap
 
 #: the tracker's counters, in the order the system reports them
-COUNTERS = ("fits", "fits_rejected", "relocalizations", "global_searches", "relocalizations_failed")
+COUNTERS = ("fits", "fits_rejected", "relocalizations", "global_searches", "relocalizations_failed", "global_finds_replaced")
+
+
+class Candidate:
+    """A kidnapped start's pose as the global searches have found it: ``map_from_odom``, and how
+    many finds have agreed, over how much turning and motion."""
+
+    def __init__(self, map_from_odom: NDArray[np.float64], odom_pose: NDArray[np.float64]) -> None:
+        self.map_from_odom = map_from_odom
+        self.agreed = 1
+        self.turned = 0.0  # rad of odometry turning since its first find
+        self.moved = 0.0  # m of odometry motion since its first find
+        self._last = odom_pose.copy()
+
+    def moved_to(self, odom_pose: NDArray[np.float64]) -> None:
+        step = se2.between(self._last, odom_pose)
+        self.turned += abs(float(step[2]))
+        self.moved += float(np.hypot(step[0], step[1]))
+        self._last = odom_pose.copy()
 
 
 class PoseTracker:
@@ -67,7 +93,12 @@ class PoseTracker:
         self._map_from_odom: NDArray[np.float64] | None = None
         self._odometry: LidarOdometry | None = None
         self._localized = False
+        self.kidnapped = False  # no initial pose given this trial: the pose is searched for everywhere
+        self._candidate: Candidate | None = None  # a kidnapped start's global finds, confirmed over motion
+        self._last_look: NDArray[np.float64] | None = None  # odometry at the last global search (kidnapped)
         self.localize_started: float | None = None
+        self.localized_at: float | None = None  # the stamp the pose was found on the map ...
+        self.localized_pose: NDArray[np.float64] | None = None  # ... and the pose found then (map frame)
         self._rejections = 0
         self.lost = False  # a window search after lost_after rejected fits found nothing; until a fit is accepted
         self.rejected_in_row = 0  # rejected fits since the last accepted one
@@ -77,6 +108,7 @@ class PoseTracker:
         """The robot's pose (3,) in the map frame as given; odometry restarts here and the pose is
         searched for around it."""
         self._initial_pose = np.asarray(pose, dtype=np.float64).copy()
+        self.kidnapped = False
         self.pose = self._initial_pose.copy()
         self._map_from_odom = None
         self._odometry = None
@@ -103,20 +135,29 @@ class PoseTracker:
         """Map-frame pose at this scan (``points``: its filtered obstacle points, robot frame): odometry
         composed onto the initial pose, corrected by the map fit; None while the pose has not been
         found on the map."""
-        if self._initial_pose is None:
+        if self._initial_pose is None and not self.kidnapped:
             if self.pose is None:
-                raise RuntimeError("the metric baseline needs set_initial_pose() before the first step")
-            self.set_initial_pose(self.pose)  # carry on from the last tracked pose
-            self._localized = True
+                self.kidnapped = True  # no pose given: search the whole map (the protocol's ``none``)
+            else:
+                self.set_initial_pose(self.pose)  # carry on from the last tracked pose
+                self._localized = True
         if self._odometry is None:
             self._odometry = LidarOdometry(self.odometry_config)
         odom_pose = self._odometry.update(obs.points, obs.odom)
+        loc = self.localization
+        near = points[np.hypot(points[:, 0], points[:, 1]) <= loc.max_range]
+        if self.kidnapped and not self._localized:
+            if self.localize_started is None:
+                self.localize_started = obs.stamp
+            found = self._kidnapped_look(near, odom_pose)
+            if found is None:
+                return None
+            self._map_from_odom, self._localized, self.localized_at = found, True, obs.stamp
+            self.localized_pose = se2.compose(found, odom_pose)
         if self._map_from_odom is None:
             assert self._initial_pose is not None
             self._map_from_odom = se2.compose(self._initial_pose, se2.inverse(odom_pose))
         pose = se2.compose(self._map_from_odom, odom_pose)
-        loc = self.localization
-        near = points[np.hypot(points[:, 0], points[:, 1]) <= loc.max_range]
         if not self._localized:
             if self.localize_started is None:
                 self.localize_started = obs.stamp
@@ -124,7 +165,8 @@ class PoseTracker:
             self.pose = pose
             if found is None:
                 return None
-            pose, self._localized = found, True
+            pose, self._localized, self.localized_at = found, True, obs.stamp
+            self.localized_pose = pose.copy()
             self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
         elif loc.enabled and self.localizer is not None and self._odometry.scans % loc.every_scans == 0:
             pose = self._fit(near, pose, odom_pose)
@@ -154,6 +196,43 @@ class PoseTracker:
             pose = fit[0]
             self._map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
         return pose
+
+    def _kidnapped_look(self, points: NDArray, odom_pose: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """A kidnapped start's search when due (the module docstring): ``map_from_odom`` once the
+        global finds have confirmed one, else None."""
+        config = self.relocalization
+        candidate = self._candidate
+        if candidate is not None:
+            candidate.moved_to(odom_pose)
+        if self._last_look is not None:
+            step = se2.between(self._last_look, odom_pose)
+            turned, moved = abs(float(step[2])), float(np.hypot(step[0], step[1]))
+            if turned < np.radians(config.look_turn_deg) and moved < config.look_distance:
+                return None
+        self._last_look = odom_pose.copy()
+        if self.relocalizer is None:
+            raise RuntimeError("a kidnapped start needs a map (use_map) to search")
+        self.counters["global_searches"] += 1
+        found = self.relocalizer.everywhere(points)
+        if found is None:
+            self.counters["relocalizations_failed"] += 1
+            return None  # no fit, or two places fit about as well: no evidence either way
+        map_from_odom = se2.compose(found[0], se2.inverse(odom_pose))
+        if candidate is not None:
+            predicted = se2.compose(candidate.map_from_odom, odom_pose)
+            off = se2.between(predicted, found[0])
+            if float(np.hypot(off[0], off[1])) <= config.confirm_xy and abs(float(np.degrees(off[2]))) <= config.confirm_yaw_deg:
+                candidate.agreed += 1
+                candidate.map_from_odom = map_from_odom  # the latest find: odometry drifts meanwhile
+            else:
+                self.counters["global_finds_replaced"] += 1
+                candidate = None
+        if candidate is None:
+            candidate = self._candidate = Candidate(map_from_odom, odom_pose)
+        spread = candidate.turned >= np.radians(config.confirm_turn_deg) or candidate.moved >= config.confirm_distance
+        if candidate.agreed >= config.confirm_looks and spread:
+            return candidate.map_from_odom
+        return None
 
     def _relocalize(self, points: NDArray, guess: NDArray, everywhere: bool) -> NDArray[np.float64] | None:
         """The pose of the scan on the map: the window around ``guess``, then (if allowed) all of it."""
