@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from navkit import geometry as se2
-from navtopo.local_grid import grid_from_points
+from navkit.scan_grid import grid_from_points
 from navtopo.scan_matching import prepare
 from navtopo.system import NavTopo, NavTopoConfig
 from runners.results import read_json

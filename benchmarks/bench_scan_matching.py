@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from navkit.geometry import between, compose, wrap_angle
-from navtopo.local_grid import GridConfig, grid_from_points
+from navkit.scan_grid import GridConfig, grid_from_points
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, match, verdict
 from runners.sim import Simulator
 from scenarios import Scenario, generators, load_scenario

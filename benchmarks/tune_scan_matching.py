@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from bench_scan_matching import generated_scenario, pair_sample, route_poses, run_pairs, scan_grids
 
-from navtopo.local_grid import GridConfig
+from navkit.scan_grid import GridConfig
 from navtopo.scan_matching import MatchingConfig, match
 
 BENCHMARK_SEEDS = frozenset({1, 7, 11, 150})

@@ -18,8 +18,8 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.geometry import between
+from navkit.scan_grid import GridConfig
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import GridConfig
 from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match, prepare
 
 

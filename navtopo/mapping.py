@@ -54,8 +54,9 @@ from navkit.geometry import (
     wrap_angle,
 )
 from navkit.raster import FREE, UNKNOWN, inside
+from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_frame, grid_from_points, overlap, warp
+from navtopo.local_grid import CroppedGrid, overlap, warp
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
 

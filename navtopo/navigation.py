@@ -39,27 +39,21 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
 from navkit.geometry import between, compose, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
 from navkit.passages import PassageCheck, PassageConfig, returns_near
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
+from navkit.scan_grid import GridConfig, ScanGrid, grid_frame, grid_from_points
 from navkit.types import Command, FailureStage, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
-from navtopo.local_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.mapping import GraphMaintainer
-from navtopo.planning import (
-    GlobalPlanner,
-    LocalPlanner,
-    PlannedPath,
-    ScanGrid,
-    UnionGrids,
-    path_positions,
-)
+from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrids, path_positions
 from navtopo.scan_matching import prepare
-from navtopo.startup import Explorer, Hypothesis, Localization, Startup
+from navtopo.startup import Hypothesis, Localization, Startup
 
 #: metres of odometry alone (every update "lost": outside every location's reach, none verified)
 #: after which the navigator says it is lost (stage ``localization``); a diagnosis, no behaviour
@@ -481,7 +475,7 @@ class Navigator:
     def _plan_in_scan(self, obs: Observation, pose: NDArray, goal: NDArray) -> PlannedPath | None:
         """The local path to ``goal`` (2,, v_cur's frame) in the scan's grid (``ScanGrid.
         plan_seen_first``), in v_cur's frame."""
-        scan = ScanGrid.of(obs.points, self.maintainer.grid_config, self.local)
+        scan = ScanGrid.of(obs.points, self.maintainer.grid_config, self.local.wide, self.local.tight)
         found = scan.plan_seen_first(
             transform_points(inverse(pose), goal[None])[0], self.local.config.unknown_detour, self.local.medial
         )

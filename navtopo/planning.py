@@ -40,15 +40,9 @@ from navkit import grid_search
 from navkit.geometry import chain, compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, densify, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
+from navkit.scan_grid import GridConfig
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import (
-    CroppedGrid,
-    GridConfig,
-    grid_from_points,
-    mean_direction,
-    warp_window,
-    warped_bounds,
-)
+from navtopo.local_grid import CroppedGrid, mean_direction, warp_window, warped_bounds
 
 
 class PlanningConfig(BaseModel):
@@ -512,56 +506,6 @@ class LocalPlanner:
         xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
         far = union.clear_of_walls(xy, self.config.new_obstacle_distance, outside=True)
         return xy[far]
-
-
-# ---------------------------------------------------------------------------------------------
-# planning in the robot's own scan
-
-
-@dataclass(frozen=True)
-class ScanGrid:
-    """One scan's grid (``local_grid.grid_from_points``, robot frame) and the local planner's levels
-    on it: with the margin, then the robot's radius alone (a narrow door); in the scan's free space,
-    then between the walls it saw (a door seen at a slant leaves little free space)."""
-
-    grid: NDArray[np.uint8]
-    frame: GridFrame
-    masks: list[NDArray[np.bool_]]
-    tight: float  # the second radius of ``masks``: the robot's radius and half a cell
-
-    @classmethod
-    def of(cls, points: NDArray, grid_config: GridConfig, local: LocalPlanner) -> ScanGrid:
-        grid = grid_from_points(points, grid_config)
-        # the scan grid placed by its corner at -radius (floor((x + radius) / res)), as the exploring
-        # moves have always been planned: not grid_frame's floor(x / res) + half, which can differ by
-        # a cell at a cell's edge
-        frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        masks = [
-            grid_search.inflate_free(space, radius, frame.resolution)
-            for radius in (local.wide, local.tight)
-            for space in (grid == FREE, grid != OCCUPIED)
-        ]
-        return cls(grid, frame, masks, local.tight)
-
-    def plan(self, end: NDArray, snap_cells: int = 5) -> PlannedPath | None:
-        """A path from the robot (the origin) to ``end`` (2,, robot frame) on the first level that has one."""
-        return plan_path(self.masks, self.frame, np.zeros(2), end, snap_cells=snap_cells)
-
-    def plan_seen_first(
-        self, end: NDArray, detour: float, medial: float | None = None, snap_cells: int = 5
-    ) -> PlannedPath | None:
-        """As ``plan``, the scan's free space tried first at both radii and, with ``medial``, along
-        a passage's middle at that radius (``LocalPlanner``'s levels: a door the scan shows open
-        before a way round through space it did not see); a way through unseen space refused if
-        longer than ``detour`` times the straight line plus 1 m."""
-        seen = [self.masks[0], self.masks[2]]  # masks: (wide, tight) x (free, not occupied)
-        if medial is not None:
-            squared = grid_search.clearance_squared(self.grid == FREE)
-            seen.append(grid_search.passable(squared, self.tight, self.frame.resolution, medial))
-        found = plan_path([*seen, self.masks[1], self.masks[3]], self.frame, np.zeros(2), end, snap_cells=snap_cells)
-        if found is None or (found.level >= len(seen) and found.length > detour * float(np.hypot(*end[:2])) + 1.0):
-            return None
-        return found
 
 
 def _passable(

@@ -40,7 +40,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from navkit.geometry import inverse, transform_points, wrap_angle
 from navkit.raster import OCCUPIED, UNKNOWN, GridFrame
-from navtopo.local_grid import Grid, GridConfig, grid_frame
+from navkit.scan_grid import Grid, GridConfig, grid_frame
 
 # a prepared grid's distance field: uint16 steps of a 2048th of a cell, saturating at 32 cells
 # (3.2 m at 0.1 m cells); every use of it compares with a cutoff under 30 cells (checked)

@@ -25,19 +25,20 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, field_validator
 
+from navkit.explore import Explorer
 from navkit.follower import FollowerConfig, PathFollower
 from navkit.odometry import LidarOdometry, OdometryConfig
+from navkit.scan_grid import GridConfig
 from navkit.types import Command, MemoryBreakdown, NavStatus, Observation
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import hint_chain, relaxed_poses
-from navtopo.local_grid import GridConfig
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
 from navtopo.navigation import NavigationConfig, Navigator
 from navtopo.place_recognition import available_descriptors, default_weights_path, make_descriptor
 from navtopo.planning import GlobalPlanner, LocalPlanner, PlanningConfig, UnionGrids
 from navtopo.scan_matching import MatchingConfig
-from navtopo.startup import Explorer, Startup, StartupConfig
+from navtopo.startup import Startup, StartupConfig
 
 
 class NavTopoConfig(BaseModel):
@@ -100,7 +101,14 @@ class NavTopo:
             graph=self.graph,
             maintainer=self.maintainer,
             startup=Startup(self.maintainer, self.descriptor.embed, config.startup),
-            explorer=Explorer(follower, local, config.grid, config.startup, robot_radius, config.navigation.block_check_distance),
+            explorer=Explorer(
+                follower,
+                config.grid,
+                config.startup.explore_distance,
+                robot_radius,
+                (local.wide, local.tight),
+                config.navigation.block_check_distance,
+            ),
             global_planner=GlobalPlanner(self.graph),
             local=local,
             unions=self.unions,
@@ -116,7 +124,7 @@ class NavTopo:
     def warm_up() -> None:
         """Load the compiled kernels (grids, matching, planning) before anything is timed."""
         from navkit.grid_search import SEARCHES, far_from, inflate_free, nearest_free
-        from navtopo.local_grid import grid_from_points
+        from navkit.scan_grid import grid_from_points
         from navtopo.scan_matching import match
 
         angles = np.linspace(0, 2 * np.pi, 360, endpoint=False)

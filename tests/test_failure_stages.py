@@ -26,9 +26,10 @@ from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.system import MetricGrid, MetricGridConfig
 from navkit import geometry as se2
 from navkit.raster import FREE, OCCUPIED, UNKNOWN
+from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navkit.types import FailureStage, NavStatus, Status
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_frame, grid_from_points
+from navtopo.local_grid import CroppedGrid
 from navtopo.place_recognition import make_descriptor
 from navtopo.system import NavTopo, NavTopoConfig
 from reports.records import TrialRecord

@@ -15,13 +15,11 @@ from pydantic import ValidationError
 from navkit.geometry import between, inverse, transform_points
 from navkit.raster import FREE, OCCUPIED, UNKNOWN
 from navkit.scan import obstacle_points
+from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.local_grid import (
     CroppedGrid,
-    GridConfig,
     decode_png,
     encode_png,
-    grid_frame,
-    grid_from_points,
     known_iou,
     known_overlap,
     overlap,

@@ -22,15 +22,10 @@ from navkit.grid_search import medial_axis
 from navkit.passages import Passage, fit_passage, moved_passage, narrow_part, shifted_path
 from navkit.raster import FREE, OCCUPIED, GridFrame
 from navkit.scan import obstacle_points
+from navkit.scan_grid import GridConfig, grid_from_points
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
-from navtopo.planning import (
-    LocalPlanner,
-    PlanningConfig,
-    UnionGrid,
-    UnionGrids,
-    build_union_grid,
-)
+from navtopo.local_grid import CroppedGrid
+from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrid, UnionGrids, build_union_grid
 
 try:
     from test_local_grid import WALL_HEIGHT, RasterWorld, lidar_scan

@@ -10,9 +10,9 @@ import yaml
 
 from navkit import geometry as se2
 from navkit.follower import FollowerConfig, PathFollower
+from navkit.scan_grid import grid_from_points
 from navkit.types import Command
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import grid_from_points
 from navtopo.scan_matching import prepare
 from navtopo.system import NavTopo, NavTopoConfig
 from runners.sim import Simulator
@@ -151,8 +151,8 @@ def test_global_localization_finds_the_location_and_the_pose_without_a_prior(sce
 def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_verified_pose_explains():
     """``mapping.correction_per_metre``: a correction may move the pose by at most base + k x the
     odometry travelled since the pose was last verified (never more than max_correction)."""
+    from navkit.scan_grid import GridConfig
     from navtopo.graph import TopologicalGraph
-    from navtopo.local_grid import GridConfig
     from navtopo.localization import LocalizationConfig
     from navtopo.mapping import GraphMaintainer, MappingConfig
     from navtopo.scan_matching import MatchingConfig
@@ -329,7 +329,8 @@ def test_a_place_far_from_the_robot_by_the_current_locations_hint_is_no_loop_clo
     current location is scan-matched, and through that location's hint only the drift between the
     two locations' making counts. A location 26 m away that looks alike is left out; one 2 m away
     stays, with the gate it had."""
-    from navtopo.local_grid import CroppedGrid, GridConfig
+    from navkit.scan_grid import GridConfig
+    from navtopo.local_grid import CroppedGrid
     from navtopo.localization import LocalizationConfig
     from navtopo.mapping import GraphMaintainer, MappingConfig
     from navtopo.scan_matching import MatchingConfig
@@ -387,7 +388,8 @@ def test_with_drifting_odometry_the_lidar_hints_place_the_locations_in_the_map_f
 def _ring_maintainer(heading_noise_deg: float = 0.1, seed: int = 0):
     """A mapped ring corridor 24 x 12 m, locations every 3 m made in order (edges measured with
     small errors), the robot back in the last location, 1.5 m short of the first: its true poses."""
-    from navtopo.local_grid import CroppedGrid, GridConfig
+    from navkit.scan_grid import GridConfig
+    from navtopo.local_grid import CroppedGrid
     from navtopo.localization import LocalizationConfig
     from navtopo.mapping import GraphMaintainer, MappingConfig
     from navtopo.scan_matching import MatchingConfig

@@ -11,8 +11,9 @@ import pytest
 
 from navkit import geometry as se2
 from navkit.raster import FREE, OCCUPIED, UNKNOWN
+from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_frame, grid_from_points
+from navtopo.local_grid import CroppedGrid
 from navtopo.navigation import goal_in_graph
 from navtopo.planning import GlobalPlanner, build_union_grid, path_positions
 from runners.mapping import MappingSystem, run_mapping

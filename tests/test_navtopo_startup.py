@@ -12,9 +12,10 @@ import pytest
 
 from navkit import geometry as se2
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame
+from navkit.scan_grid import GridConfig, grid_from_points
 from navkit.types import Observation
 from navtopo.graph import TopologicalGraph
-from navtopo.local_grid import CroppedGrid, GridConfig, grid_from_points
+from navtopo.local_grid import CroppedGrid
 from navtopo.localization import LocalizationConfig
 from navtopo.mapping import GraphMaintainer, MappingConfig
 from navtopo.planning import UnionGrid

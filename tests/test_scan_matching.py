@@ -8,7 +8,7 @@ from pydantic import ValidationError
 
 from navkit.geometry import between, compose, inverse, wrap_angle
 from navkit.raster import OCCUPIED
-from navtopo.local_grid import GridConfig, grid_from_points
+from navkit.scan_grid import GridConfig, grid_from_points
 from navtopo.scan_matching import MatchingConfig, MatchResult, PreparedGrid, match
 
 try:
