@@ -188,7 +188,8 @@ def run(
     executor with their jobs in flight together.
 
     The protocol is the same for every system (docs/DESIGN.md): systems that take an initial pose
-    get the trial's start with a seeded error (--initial-pose-error), and every system that
+    get the trial's start with a seeded error (--initial-pose-error), or none with --initial-pose
+    none (kidnapped: each localizes globally on its own map), and every system that
     declares "reached" by its own estimate stops within --stop-tolerance of the goal; success is
     the robot's true position within 0.5 m of the goal when it stops.
     """

@@ -202,6 +202,16 @@ class RelocalizationConfig(BaseModel):
     confirm_distance: float = Field(1.0, ge=0, description="... this many m of motion")
     confirm_xy: float = Field(0.3, gt=0, description="m: two finds agree when this close, carried to one time by odometry ...")
     confirm_yaw_deg: float = Field(5.0, gt=0, description="... and this many deg")
+    explore_after_deg: float = Field(
+        360.0,
+        ge=0,
+        description="kidnapped: deg turned in place before the robot moves toward open space for new views (the "
+        "exploring moves of NavTopo's start-up, navkit.explore), while no pose is confirmed",
+    )
+    explore_distance: float = Field(1.5, gt=0, description="m of each exploring move (NavTopo's start-up's)")
+    kidnapped_timeout: float = Field(
+        90.0, gt=0, description="s of simulated time without a confirmed pose from a kidnapped start (NavTopo's start-up's)"
+    )
 
 
 def _square(centre_xy: NDArray, half: float, step: float) -> NDArray[np.float64]:

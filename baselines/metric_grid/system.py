@@ -49,12 +49,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import grid_search
+from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
-from navkit.geometry import transform_points
+from navkit.geometry import between, transform_points
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.passages import PassageCheck, returns_near
 from navkit.raster import FREE, OCCUPIED
 from navkit.scan import obstacle_points
+from navkit.scan_grid import GridConfig
 from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
 
 from . import map_folder
@@ -110,6 +112,22 @@ class MetricGrid:
         self.planner: GridPlanner | None = None
         self.obstacles = UnmappedObstacles(cfg.planning)
         self.follower = PathFollower(cfg.follower)
+        # a kidnapped start's moves toward open space (NavTopo's start-up's): in the scan's own grid,
+        # at the planner's two radii (with the margin and half a cell, then alone and half a cell)
+        scan_grid = GridConfig(floor_height=self.band.floor_height, ceiling_height=self.band.ceiling_height)
+        tight = self.robot_radius + scan_grid.resolution / 2
+        self.explorer = Explorer(
+            self.follower,
+            scan_grid,
+            cfg.relocalization.explore_distance,
+            self.robot_radius,
+            (tight + cfg.planning.inflation_margin, tight),
+            cfg.planning.block_check_distance,
+        )
+        self._odometer = 0.0  # m of odometry this trial (a kidnapped start's exploring moves run on it)
+        self._turned = 0.0  # rad turned this trial while no pose was found
+        self._last_odom: NDArray[np.float64] | None = None
+        self.explore_counters = {"explore_moves": 0, "explore_blocked": 0}
         self.passages = PassageCheck(cfg.planning.passages, self.robot_radius)
         self.progress = ProgressCheck(cfg.planning.progress_distance, cfg.planning.progress_time)
         self._recoveries = 0  # this goal's
@@ -121,7 +139,7 @@ class MetricGrid:
     @property
     def counters(self) -> dict[str, int]:
         """The planner's counters, then the tracker's (a copy)."""
-        return {**self.plan_counters, **self.tracker.counters}
+        return {**self.plan_counters, **self.tracker.counters, **self.explore_counters}
 
     @staticmethod
     def warm_up() -> None:
@@ -247,6 +265,9 @@ class MetricGrid:
         self._start_over()
         self.obstacles.reset()  # the latest scan's new obstacles too
         self.plan_counters = dict.fromkeys(self.plan_counters, 0)
+        self.explorer.reset()
+        self.explore_counters = dict.fromkeys(self.explore_counters, 0)
+        self._odometer, self._turned, self._last_odom = 0.0, 0.0, None
         if self.planner is not None:
             self.planner.forget()  # cold: the first plan makes its line-of-sight rasters again
 
@@ -279,14 +300,22 @@ class MetricGrid:
         if self.status.state != Status.ACTIVE:
             return Command()
         points = voxel_filter_2d(obstacle_points(obs.points, self.band), self.config.localization.voxel)
+        self._count_odometry(obs.odom)
         pose = self.tracker.track(obs, points)
         if pose is None:  # no pose found on the map yet: turn in place to see more, for a while
             if self.tracker.search_timed_out(obs.stamp):
-                detail = f"no fit on the map {self._searched()} in {self.config.relocalization.timeout:g} s"
+                limit = self.config.relocalization
+                seconds = limit.kidnapped_timeout if self.tracker.kidnapped else limit.timeout
+                detail = f"no fit on the map {self._searched()} in {seconds:g} s"
                 self.status = NavStatus(Status.FAILED, "not_localized", FailureStage.STARTUP, detail)
                 return Command()
             self._keep_stage()
+            if self.tracker.kidnapped and self._turned >= np.radians(self.config.relocalization.explore_after_deg):
+                return self._explore(obs)
             return Command(0.0, self.config.relocalization.turn_rate)
+        if self.explorer.move is not None:  # the pose is found: the exploring move ends here
+            self.explorer.stop()
+            self.follower.clear()
         self._keep_stage()
         self.obstacles.update(pose, points, self.tracker.localizer)
         if self.progress.stalled(obs.stamp, obs.odom) and not self._recover():
@@ -323,6 +352,26 @@ class MetricGrid:
             self.status = NavStatus(Status.REACHED, detail=detail)
             return Command()
         return command
+
+    def _count_odometry(self, odom: NDArray) -> None:
+        """The trial's odometer, and the turning while no pose is found (a kidnapped start turns in
+        place for ``explore_after_deg`` before it explores)."""
+        odom = np.asarray(odom, dtype=np.float64)
+        if self._last_odom is not None:
+            step = between(self._last_odom, odom)
+            self._odometer += float(np.hypot(step[0], step[1]))
+            if not self.tracker.localized:
+                self._turned += abs(float(step[2]))
+        self._last_odom = odom.copy()
+
+    def _explore(self, obs: Observation) -> Command:
+        """A kidnapped start not confirmed by turning in place: moves toward open space for new views
+        (``navkit.explore``, as NavTopo's start-up), each ``explore_distance`` long."""
+        explorer = self.explorer
+        explorer.record(obs.odom)
+        if not explorer.under_way(self._odometer):
+            explorer.begin(obs.stamp, self._odometer)
+        return explorer.step(obs, self.explore_counters)
 
     def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
         """The narrow passage of the path against the scan's returns (``navkit.passages``): moved to

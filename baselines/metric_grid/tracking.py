@@ -128,8 +128,11 @@ class PoseTracker:
         return None if self._initial_pose is None else self._initial_pose.copy()
 
     def search_timed_out(self, stamp: float) -> bool:
-        """Whether the pose has been searched for longer than the relocalization timeout at ``stamp``."""
-        return stamp - (self.localize_started or 0.0) > self.relocalization.timeout
+        """Whether the pose has been searched for longer than the relocalization timeout at ``stamp``
+        (a kidnapped start's own, as long as NavTopo's start-up)."""
+        config = self.relocalization
+        limit = config.kidnapped_timeout if self.kidnapped else config.timeout
+        return stamp - (self.localize_started or 0.0) > limit
 
     def track(self, obs: Observation, points: NDArray) -> NDArray[np.float64] | None:
         """Map-frame pose at this scan (``points``: its filtered obstacle points, robot frame): odometry
