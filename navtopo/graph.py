@@ -4,10 +4,13 @@ Muravyev & Yakovlev, Sec. "Graph Structure": a vertex is a location ``v = (grid_
 here with its creation stamp and the odometry pose at creation (a hint for drift-gated
 localization, never a global position); an edge ``e = (u, v, T_uv)`` stores the pose of v's
 observation point in u's frame (``navkit.geometry.between``), and its inverse for the way back.
-Dijkstra weighs an edge by the length of its translation.
+Dijkstra weighs an edge by its length: the way between the two observation points measured on
+their grids when mapping ends (``set_edge_length``: round a wall corner, through a door), else the
+length of its translation.
 
 On disk a graph is a folder: ``graph.json`` (format, vertices, edges), ``grids/<id>.png`` (one
-lossless PNG per vertex grid) and ``descriptors.npy`` ((V, D) float32). ``load`` refuses a
+lossless PNG per vertex grid) and ``descriptors.npy`` ((V, D) float32). An edge is ``[u, v, x, y, yaw]``, and its measured length
+after them when it has one (readers of the five numbers alone still read it). ``load`` refuses a
 corrupt or partial folder with one ``GraphFormatError`` line naming the file, key and reason.
 """
 
@@ -32,6 +35,7 @@ from navtopo.local_grid import CroppedGrid, decode_png, encode_png
 
 FORMAT = "navtopo-graph/1"
 EDGE_BYTES = 2 * 8 + 3 * 8  # neighbour id + owner id (int64) and the relative pose (3 float64)
+LENGTH_BYTES = 8  # an edge's measured length (float64), kept once for both directions
 
 
 class GraphFormatError(BenchError, ValueError):
@@ -57,6 +61,7 @@ class TopologicalGraph:
         self.vertices: list[Vertex] = []
         self._descriptors = np.zeros((0, self.descriptor_dim), dtype=np.float32)
         self._adjacency: list[dict[int, NDArray[np.float64]]] = []
+        self._lengths: dict[tuple[int, int], float] = {}  # (u, v), u < v: measured ways (``set_edge_length``)
 
     # -- structure -------------------------------------------------------------------------------
 
@@ -94,10 +99,31 @@ class TopologicalGraph:
         pose_uv = np.asarray(pose_uv, dtype=np.float64).copy()
         self._adjacency[u][v] = pose_uv
         self._adjacency[v][u] = inverse(pose_uv)
+        self._lengths.pop((min(u, v), max(u, v)), None)  # a new pose: the old measure no longer holds
 
     def remove_edge(self, u: int, v: int) -> None:
         self._adjacency[u].pop(v, None)
         self._adjacency[v].pop(u, None)
+        self._lengths.pop((min(u, v), max(u, v)), None)
+
+    def set_edge_length(self, u: int, v: int, metres: float) -> None:
+        """The edge's length as the robot drives it (the way measured on the grids; never below the
+        straight line): Dijkstra's weight from now on."""
+        if not self.has_edge(u, v):
+            raise KeyError(f"no edge ({u}, {v})")
+        pose = self._adjacency[u][v]
+        self._lengths[(min(u, v), max(u, v))] = max(float(metres), math.hypot(pose[0], pose[1]))
+
+    def edge_length(self, u: int, v: int) -> float:
+        """Dijkstra's weight of the edge: its measured length, else its translation's."""
+        measured = self._lengths.get((min(u, v), max(u, v)))
+        if measured is not None:
+            return measured
+        pose = self._adjacency[u][v]
+        return math.hypot(pose[0], pose[1])
+
+    def measured_edge(self, u: int, v: int) -> bool:
+        return (min(u, v), max(u, v)) in self._lengths
 
     def has_edge(self, u: int, v: int) -> bool:
         return v in self._adjacency[u]
@@ -120,7 +146,7 @@ class TopologicalGraph:
     # -- search ----------------------------------------------------------------------------------
 
     def dijkstra(self, source: int, removed: Collection[frozenset[int]] = ()) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """Distances (translation lengths) from ``source`` to every vertex and the predecessors (each
+        """Distances (edge lengths: ``edge_length``) from ``source`` to every vertex and the predecessors (each
         vertex's next one on the way back to ``source``), over the edges but those in ``removed``
         (``frozenset((u, v))``: edges found impassable during a trial)."""
         n = len(self.vertices)
@@ -128,6 +154,7 @@ class TopologicalGraph:
         prev = [-1] * n
         dist[source] = 0.0
         heap = [(0.0, source)]
+        lengths = self._lengths
         while heap:
             d, u = heapq.heappop(heap)
             if d > dist[u]:
@@ -135,7 +162,8 @@ class TopologicalGraph:
             for v, pose in self._adjacency[u].items():
                 if removed and frozenset((u, v)) in removed:
                     continue
-                nd = d + math.hypot(pose[0], pose[1])
+                measured = lengths.get((u, v) if u < v else (v, u)) if lengths else None
+                nd = d + (measured if measured is not None else math.hypot(pose[0], pose[1]))
                 if nd < dist[v]:
                     dist[v] = nd
                     prev[v] = u
@@ -175,13 +203,20 @@ class TopologicalGraph:
     @property
     def nbytes(self) -> int:
         """Exact bytes of the map's data: grids, descriptors, pose hints (odometry and lidar), stamps,
-        odometers, edges."""
+        odometers, edges and their measured lengths."""
         n = len(self.vertices)
         grids = sum(v.grid.nbytes for v in self.vertices)
         odometers = 8 * sum(1 for v in self.vertices if v.odometer is not None)
         lidar_hints = 3 * 8 * sum(1 for v in self.vertices if v.lidar_hint is not None)
         return int(
-            grids + self.descriptors.nbytes + n * 3 * 8 + n * 8 + odometers + lidar_hints + 2 * self.edge_count * EDGE_BYTES
+            grids
+            + self.descriptors.nbytes
+            + n * 3 * 8
+            + n * 8
+            + odometers
+            + lidar_hints
+            + 2 * self.edge_count * EDGE_BYTES
+            + len(self._lengths) * LENGTH_BYTES
         )
 
     # -- files -----------------------------------------------------------------------------------
@@ -215,7 +250,10 @@ class TopologicalGraph:
                 }
                 for i, v in enumerate(self.vertices)
             ],
-            "edges": [[u, v, *[float(x) for x in pose]] for u, v, pose in self.edges()],
+            "edges": [
+                [u, v, *[float(x) for x in pose], *([self._lengths[(u, v)]] if (u, v) in self._lengths else [])]
+                for u, v, pose in self.edges()
+            ],
             **(extra or {}),
         }
         atomic_write(directory / "graph.json", (json.dumps(data, indent=1) + "\n").encode())
@@ -241,6 +279,11 @@ class TopologicalGraph:
                 if not (0 <= u < len(graph) and 0 <= v < len(graph)):
                     raise ValueError(f"vertex id out of range ({u}, {v})")
                 graph.add_edge(u, v, np.asarray(edge[2:5], float))
+                if len(edge) > 5:
+                    length = float(edge[5])
+                    if not (math.isfinite(length) and length >= 0):
+                        raise ValueError(f"length {edge[5]!r} is not a finite length")
+                    graph.set_edge_length(u, v, length)
             except (TypeError, ValueError, IndexError) as exc:
                 raise GraphFormatError(f"{index}: edges.{j}: bad edge ({exc})") from None
         extra = {k: v for k, v in data.items() if k not in ("format", "descriptor_dim", "vertices", "edges")}

@@ -103,18 +103,23 @@ class Localizer:
         guess: NDArray[np.float64] | None = None,
         max_jump: float | None = None,
         strict: bool = False,
+        min_wall_agreement: float | None = None,
     ) -> Localized | None:
         """Match the current grid against one vertex; the robot's pose in it, or None. ``strict``:
-        see ``scan_matching.match``.
+        see ``scan_matching.match``; ``min_wall_agreement``: the verdict's with a guess, if not the
+        matcher's own.
 
         With a guess, a match that shares little known area (below ``min_overlap``, the threshold
         without a guess) still says the place is right, but its pose is less sure than the guess
         (few walls in common fix the rotation poorly): the guess is kept as the pose."""
+        matching = self.matching
+        if min_wall_agreement is not None:
+            matching = matching.model_copy(update={"min_wall_agreement": min_wall_agreement})
         result = match(
             self.grids.get(vertex),
             query,
             initial_guess=guess,
-            config=self.matching,
+            config=matching,
             grid_config=self.grid_config,
             strict=strict or self.strict,
         )

@@ -143,6 +143,13 @@ class MappingConfig(BaseModel):
     shortcut_detour: float = Field(
         1.25, ge=1.0, description="... the way between them at most this times the straight line (plus two cells)"
     )
+    shortcut_wall_agreement: float | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="... the match's wall agreement at least this (None: the matcher's min_wall_agreement): two grids "
+        "a few metres apart, one from a corridor and one from its junction, see a wall's far side differently",
+    )
     # a prior on odometry's quality (not the benchmark's setting): how the pose's covariance grows
     # between matches, so that the pose a new location's edge starts from weighs what it is worth
     odometry_sigma_per_metre: float = Field(0.02, ge=0, description="odometry translation noise, m per m travelled")
@@ -197,6 +204,7 @@ class MappingCounters:
     rejected_closures: int = 0  # mapping: loop closures that disagreed with the graph's way round (look-alike places)
     undone_closures: int = 0  # mapping: loop-closure edges removed when a later closure contradicted them
     shortcuts: int = 0  # mapping's end: edges between locations joined only the long way round, a way seen between them
+    edges_measured: int = 0  # mapping's end: edges whose length the grids measured (Dijkstra's weights)
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -582,7 +590,13 @@ class GraphMaintainer:
                 if path is not None and path_length < config.loop_ratio * max(distance, 1.0):
                     continue
                 self.counters.matches += 1
-                located = self.localizer.verify(self.grids.get(v), u, guess, config.max_neighbour_jump + float(drift[v]))
+                located = self.localizer.verify(
+                    self.grids.get(v),
+                    u,
+                    guess,
+                    config.max_neighbour_jump + float(drift[v]),
+                    min_wall_agreement=config.shortcut_wall_agreement,
+                )
                 if located is None or located.result.covariance is None:
                     continue
                 covariance = np.asarray(located.result.covariance, dtype=np.float64)
@@ -598,6 +612,21 @@ class GraphMaintainer:
                 self.counters.shortcuts += 1
                 added += 1
         return added
+
+    def measure_edges(self, clearance: float) -> int:
+        """Mapping's end: each edge's length as the robot drives it (``_way_between``, the way through
+        the two grids' known free space ``clearance`` from the rest), Dijkstra's weight from then on:
+        a route that turns round a wall corner or goes through a door is longer than its straight
+        edges, and two routes are compared by what driving them takes. An edge with no such way
+        (its two grids do not show one) keeps its straight length. Returns the count measured."""
+        measured = 0
+        for u, v, pose in self.graph.edges():
+            way = self._way_between(u, v, pose, clearance)
+            if way is not None:
+                self.graph.set_edge_length(u, v, way)
+                measured += 1
+        self.counters.edges_measured = measured
+        return measured
 
     def _way_between(self, u: int, v: int, pose_uv: NDArray[np.float64], clearance: float) -> float | None:
         """The length (m) of the shortest way from u's observation point to v's (at ``pose_uv`` in u's

@@ -50,6 +50,25 @@ def test_dijkstra_follows_translation_lengths_and_composes_the_true_pose():
     assert graph.shortest_path(0, 4)[0] == [0, 4]
 
 
+def test_a_measured_edge_length_outweighs_its_straight_line_and_survives_a_save(tmp_path):
+    """The straight edge 0-4 measured as the way round a wall (40 m): Dijkstra takes the chain
+    (12.6 m) instead, the length is kept in the folder, and a changed pose drops it."""
+    graph, poses = chain(5)
+    graph.add_edge(0, 4, se2.between(poses[0], poses[4]))
+    assert graph.shortest_path(0, 4)[0] == [0, 4]
+    graph.set_edge_length(0, 4, 40.0)
+    graph.set_edge_length(1, 2, 0.5)  # never below the straight line
+    assert graph.edge_length(2, 1) == pytest.approx(np.hypot(*(poses[2, :2] - poses[1, :2])))
+    path, length = graph.shortest_path(0, 4)
+    assert path == [0, 1, 2, 3, 4] and length < 13.0
+    graph.save(tmp_path / "g")
+    loaded, _ = TopologicalGraph.load(tmp_path / "g")
+    assert loaded.edge_length(4, 0) == 40.0 and loaded.shortest_path(0, 4)[0] == [0, 1, 2, 3, 4]
+    assert loaded.nbytes == graph.nbytes
+    loaded.add_edge(0, 4, se2.between(poses[0], poses[4]))
+    assert not loaded.measured_edge(0, 4) and loaded.shortest_path(0, 4)[0] == [0, 4]
+
+
 def test_nearest_descriptors():
     graph, _ = chain(5)
     ids, distances = graph.nearest(np.eye(8, dtype=np.float32)[3], k=2)

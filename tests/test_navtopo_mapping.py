@@ -321,6 +321,18 @@ def test_mapping_ends_by_joining_locations_the_graph_joins_only_the_long_way_rou
     assert system.graph.has_edge(first, last) == (shortcut_radius is not None)
     assert system.maintainer.counters.shortcuts == (1 if shortcut_radius else 0)
     assert ring_unjoined(system, scenario, true_at) == ([] if shortcut_radius else [(first, last)])
+    # every edge's length measured on the two grids: the way the robot drives between the two
+    # observation points, no shorter than the true shortest way in the world (less a cell's
+    # rounding) and at most a little longer
+    from scenarios.route_space import polyline_length, shortest_path
+
+    assert system.maintainer.counters.edges_measured == system.graph.edge_count
+    for u, v, pose_uv in system.graph.edges():
+        a, b = true_at[system.graph.vertices[u].stamp][:2], true_at[system.graph.vertices[v].stamp][:2]
+        truth = polyline_length(shortest_path(scenario.world, scenario.passable, a, b))
+        measured = system.graph.edge_length(u, v)
+        assert system.graph.measured_edge(u, v) and measured >= np.hypot(pose_uv[0], pose_uv[1])
+        assert truth - 0.15 <= measured <= 1.1 * truth + 0.3, (u, v, measured, truth)
 
 
 def test_a_place_far_from_the_robot_by_the_current_locations_hint_is_no_loop_closure_candidate():
