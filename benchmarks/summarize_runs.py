@@ -39,6 +39,8 @@ def main() -> None:
         extra = []
         if goals != "map":
             extra.append(f"goals {goals}")
+        if (manifest.get("protocol") or {}).get("initial_pose") == "none":
+            extra.append("kidnapped")
         if smoothing and smoothing != "lookahead":
             extra.append(f"smoothing {smoothing}")
         if manifest.get("maps_from"):
@@ -67,9 +69,12 @@ def main() -> None:
             if loc:
                 seconds = loc.get("seconds") or {}
                 conversion = s.get("goal_conversion_error_m") or {}
+                metres = loc.get("metres") or {}
                 rows_loc.append(
-                    f"| {label} | {loc['right']} | {loc['wrong']} | {loc['not_localized']} | {_num(seconds.get('median'), 1)} / "
-                    f"{_num(seconds.get('max'), 1)} | {_num(loc.get('error_m_median'))} | {_num(conversion.get('median'))} / "
+                    f"| {label} | {name} | {loc['right']} | {loc['wrong']} | {loc['not_localized']} | "
+                    f"{loc.get('from_given_pose', '–')} | {_num(seconds.get('median'), 1)} / {_num(seconds.get('max'), 1)} | "
+                    f"{_num(metres.get('median'), 2)} / {_num(metres.get('max'), 2)} | {_num(loc.get('error_m_median'))} | "
+                    f"{_num(s.get('efficiency_after_startup_mean'))} | {_num(conversion.get('median'))} / "
                     f"{_num(conversion.get('max'))} |"
                 )
         for path in sorted((run / "mapping").glob("*.json")) if (run / "mapping").is_dir() else []:
@@ -105,10 +110,11 @@ def main() -> None:
     print("\n".join(rows_mem))
     if rows_loc:
         print(
-            "\n| scenario / setting | start-up localization right | wrong | not localized | seconds median / max | "
-            "error median (m) | goal conversion error median / max (m) |"
+            "\n| scenario / setting | system | start-up localization right | wrong | not localized | from the given pose | "
+            "seconds median / max | metres driven median / max | error median (m) | efficiency after start-up | "
+            "goal conversion error median / max (m) |"
         )
-        print("|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         print("\n".join(rows_loc))
     if rows_map:
         print(
