@@ -306,10 +306,10 @@ def test_mapping_ends_by_joining_locations_the_graph_joins_only_the_long_way_rou
     joins them (their grids matched, a way between them through both grids' free space, the
     loop-closure check passed), at the true relative pose; with it off they stay apart. (The two
     grids, 7 m apart round the ring's boxes, agree on 85 % of their walls at the true pose: the
-    matcher's verdict is eased to 80 % here, the default 90 % left to the generated buildings.)"""
+    shortcut pass's own verdict, ``shortcut_wall_agreement``, takes them; the matcher's 90 % would not.)"""
     scenario = load_scenario(small_ring(tmp_path))
     mapping = {"closure_radius": None, "shortcut_radius": shortcut_radius}
-    config = NavTopoConfig(descriptor="scan_context", mapping=mapping, matching={"min_wall_agreement": 0.8})
+    config = NavTopoConfig(descriptor="scan_context", mapping=mapping)
     system = NavTopo.create(config)
     true_at: dict = {}
     with Simulator(scenario) as sim:
