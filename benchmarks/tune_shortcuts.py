@@ -43,7 +43,7 @@ def evaluate(run: Path, variant: dict) -> dict:
             wrong.append((u, v, round(float(np.hypot(error[0], error[1])), 2)))
     scenario = load_scenario(manifest["scenario"]["file"])
     pairs = [(u, v) for u, v, _ in graph.edges()]
-    positions = [t[:2] for t in truth]
+    positions = np.array([t[:2] for t in truth])
     unjoined = unjoined_neighbours(positions, pairs, scenario.world.clearances_at, scenario.spec.robot.radius, radius=8.0)
     return {"run": run.name, "added": added, "wrong": wrong, "unjoined": len(unjoined)}
 

@@ -51,7 +51,7 @@ from navkit.types import Command, FailureStage, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.mapping import GraphMaintainer
-from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrids, path_positions
+from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrid, UnionGrids, path_positions
 from navtopo.scan_matching import prepare
 from navtopo.startup import Hypothesis, Localization, Startup
 
@@ -86,6 +86,13 @@ class NavigationConfig(BaseModel):
     )
     passage_check_period: float = Field(0.2, ge=0, description="s of simulated time between checks of a passage")
     passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
+    recoveries: int = Field(
+        3,
+        ge=0,
+        description="per goal, as the metric baseline's (Nav2's behaviour tree: clear the costmap, plan again): a local "
+        "plan that only the remembered obstacles stop forgets them and plans again before the edge is removed (returns "
+        "a few decimetres off a mapped wall in a narrow corridor, kept as obstacles, shut it both ways)",
+    )
 
 
 def goal_in_graph(
@@ -204,6 +211,7 @@ class Navigator:
                 "passages_centred",
                 "passages_blocked",
                 "scan_plans",
+                "recoveries",
             ],
             0,
         )
@@ -447,6 +455,8 @@ class Navigator:
                 planned = self._plan_in_scan(obs, pose, target)
             if planned is not None or len(route) == 1 or tentative:
                 break
+            if self._recover(union, pose, target):
+                continue  # only the remembered obstacles stopped it: forgotten, planned again
             # no way to the next vertex in the union grid (a closed door, an obstacle the map lacks)
             self.counters["plans_failed"] += 1
             self.counters["edges_removed"] += 1
@@ -470,6 +480,19 @@ class Navigator:
         self._passages().set_path(self.follower.path, None if medial is None else union.passable_at(kind, radius))
         if not tentative:
             self._describe(self._following(route))
+        return True
+
+    def _recover(self, union: UnionGrid, pose: NDArray, target: NDArray) -> bool:
+        """A failed local plan that the map alone allows (the remembered obstacles stopped it): forget
+        them and plan again, as the metric baseline clears its costmap, while this goal has
+        ``recoveries`` left (counted). A door shut after mapping is seen again at the next scan, and
+        the plan fails again; past the recoveries the edge is removed."""
+        if not len(self.obstacles) or self.counters["recoveries"] >= self.config.recoveries:
+            return False
+        if self.local.plan(union, pose, target) is None:
+            return False  # no way even on the map: the edge goes
+        self.counters["recoveries"] += 1
+        self.obstacles.clear()
         return True
 
     def _plan_in_scan(self, obs: Observation, pose: NDArray, goal: NDArray) -> PlannedPath | None:

@@ -220,28 +220,31 @@ def test_a_start_far_from_the_given_pose_is_found_by_the_global_search(tiny, sim
     assert se2.distance(estimate, truth) < 0.1, (estimate, truth)
 
 
-def test_a_kidnapped_start_is_found_on_the_whole_map_and_confirmed_over_a_turn(tiny, sim, mapped, context):
-    """The protocol's ``none``: no pose given. The whole map is searched as the robot turns in place;
-    the pose is taken only after three finds agree over 90° of turning, and it is the truth's."""
+def test_a_kidnapped_start_is_found_on_the_whole_map_and_confirmed_over_motion(tiny, sim, mapped, context):
+    """The protocol's ``none``: no pose given. The whole map is searched as the robot turns in place,
+    then as it explores; the pose is taken only after three finds agree over 90° of turning and 3 m
+    of motion, and it is the truth's."""
     _, directory, _ = mapped
     system = MetricGrid.load(directory, MetricGridConfig(), context)
     trial = tiny.trials[1]
     sim.reset(trial.start)
     system.reset()
     system.set_goal(se2.transform_points(se2.inverse(tiny.route_start), trial.goal[None, :])[0])
-    found_at, turned = None, 0.0
-    for tick in range(200):
+    found_at, turned, moved = None, 0.0, 0.0
+    for tick in range(900):
         truth = se2.between(tiny.route_start, sim.true_pose)
         obs = sim.observe()
         command = system.step(obs)
         if system.tracker.localized:
             found_at = tick
             break
-        before = sim.true_pose[2]
+        before = sim.true_pose.copy()
         sim.step(command)
-        turned += abs(se2.wrap_angle(sim.true_pose[2] - before))
+        turned += abs(se2.wrap_angle(sim.true_pose[2] - before[2]))
+        moved += float(np.hypot(*(sim.true_pose[:2] - before[:2])))
+        assert sim.collisions == 0
     assert found_at is not None and system.tracker.kidnapped
-    assert system.counters["global_searches"] >= 3 and turned >= np.radians(90.0) - 0.1
+    assert system.counters["global_searches"] >= 3 and turned >= np.radians(90.0) - 0.1 and moved >= 3.0 - 0.1
     estimate = system.pose_estimate()
     assert se2.distance(estimate, truth) < 0.1 and abs(se2.wrap_angle(estimate[2] - truth[2])) < np.deg2rad(1.0)
     first = system.stats()["localizations"][0]

@@ -197,9 +197,14 @@ class RelocalizationConfig(BaseModel):
         3, ge=1, description="kidnapped: global finds that must agree (carried by odometry) before the pose is taken ..."
     )
     confirm_turn_deg: float = Field(
-        90.0, ge=0, description="... over at least this much turning (different views of the place) or ..."
+        90.0, ge=0, description="... over at least this much turning (different views of the place) and ..."
     )
-    confirm_distance: float = Field(1.0, ge=0, description="... this many m of motion")
+    confirm_distance: float = Field(
+        3.0,
+        ge=0,
+        description="... this many m of motion (NavTopo's start-up's confirm_span: a building symmetric under a half "
+        "turn fits one place's views turning on the spot as well as the other's)",
+    )
     confirm_xy: float = Field(0.3, gt=0, description="m: two finds agree when this close, carried to one time by odometry ...")
     confirm_yaw_deg: float = Field(5.0, gt=0, description="... and this many deg")
     explore_after_deg: float = Field(
@@ -246,6 +251,7 @@ class Relocalizer:
         self._fits_shape = free.shape
         self._fits = np.packbits(clearance * self.resolution >= robot_radius, axis=None)
         self._global_positions: NDArray[np.float64] | None = None
+        self.ambiguous = False  # the last search refused two places that fit about as well
 
     @property
     def nbytes(self) -> int:
@@ -301,10 +307,12 @@ class Relocalizer:
             refined.append((self.scan_to_map.inlier_share(points, fitted), fitted))
         refined.sort(key=lambda r: -r[0])
         best_share, best = refined[0]
+        self.ambiguous = False
         if best_share < self.config.min_inlier_share:
             return None
         for share, pose in refined[1:]:
             if np.hypot(*(pose[:2] - best[:2])) >= self.config.distinct_distance and share > best_share - self.config.min_margin:
+                self.ambiguous = True
                 return None  # two places explain the scan about as well: do not guess
         return best, best_share
 

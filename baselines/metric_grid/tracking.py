@@ -13,10 +13,13 @@ the next accepted fit (the system's failure stage ``localization`` meanwhile).
 Kidnapped (the protocol's ``initial_pose: none``: no pose given): the whole map is searched at the
 first scan and after every ``look_turn_deg`` of turning or ``look_distance`` of motion; a find that
 agrees with the last one carried by odometry (``confirm_xy``, ``confirm_yaw_deg``) confirms it, one
-that does not replaces it, and a search that finds nothing (no fit, or two places that fit about as
-well) is no evidence either way. The pose is taken after ``confirm_looks`` agreeing finds spread
-over ``confirm_turn_deg`` of turning or ``confirm_distance`` of motion: one view of a place can fit
-a look-alike elsewhere, its other views rarely do as well.
+that does not replaces it, a search that finds two places that fit about as well drops it (the
+place is not told apart from here), and one that fits nowhere is no evidence. The pose is taken
+after ``confirm_looks`` agreeing finds spread over ``confirm_turn_deg`` of turning and
+``confirm_distance`` of motion: one view of a place can fit a look-alike elsewhere, and a building
+symmetric under a half turn fits every view from one spot (on loop_office_door, with its door shut
+since mapping, a start committed 19 m off after 90° of turning and a metre); NavTopo's start-up
+asks for its places 3 m apart.
 
 Poses are map-frame ``[x, y, yaw]`` float64; scans are (N, 2) obstacle points in the robot frame.
 """
@@ -219,7 +222,9 @@ class PoseTracker:
         found = self.relocalizer.everywhere(points)
         if found is None:
             self.counters["relocalizations_failed"] += 1
-            return None  # no fit, or two places fit about as well: no evidence either way
+            if self.relocalizer.ambiguous:
+                self._candidate = None  # two places fit about as well from here: the candidate is not told apart
+            return None
         map_from_odom = se2.compose(found[0], se2.inverse(odom_pose))
         if candidate is not None:
             predicted = se2.compose(candidate.map_from_odom, odom_pose)
@@ -232,7 +237,7 @@ class PoseTracker:
                 candidate = None
         if candidate is None:
             candidate = self._candidate = Candidate(map_from_odom, odom_pose)
-        spread = candidate.turned >= np.radians(config.confirm_turn_deg) or candidate.moved >= config.confirm_distance
+        spread = candidate.turned >= np.radians(config.confirm_turn_deg) and candidate.moved >= config.confirm_distance
         if candidate.agreed >= config.confirm_looks and spread:
             return candidate.map_from_odom
         return None
