@@ -53,6 +53,7 @@ from navkit.geometry import (
     inverse_with_covariance,
     wrap_angle,
 )
+from navkit.odometer import Odometer
 from navkit.raster import FREE, UNKNOWN, inside
 from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
@@ -248,9 +249,8 @@ class GraphMaintainer:
         self.pose_in_current = np.zeros(3)
         self.pose_covariance = np.zeros((3, 3))  # of pose_in_current
         self.counters = MappingCounters()
-        self._last_odom: NDArray[np.float64] | None = None
+        self._odom = Odometer()  # of the whole drive
         self._odom_at_update: NDArray[np.float64] | None = None
-        self._odometer = 0.0  # metres of odometry travelled
         self._odometer_verified = 0.0  # the odometer when the pose was last verified by scan matching
         self._odometer_at_vertex: dict[int, float] = {}
         self._edges: dict[tuple[int, int], EdgeEstimate] = {}
@@ -265,15 +265,15 @@ class GraphMaintainer:
     # -- odometry ----------------------------------------------------------------------------------
 
     def integrate(self, odom: NDArray[np.float64]) -> None:
-        if self._last_odom is not None:
-            delta = between(self._last_odom, odom)
-            self.pose_in_current = compose(self.pose_in_current, delta)
-            step = float(np.hypot(delta[0], delta[1]))
-            self._odometer += step
-            sigma_xy = self.config.odometry_sigma_per_metre * step
-            sigma_yaw2 = np.radians(self.config.odometry_yaw_sigma_deg) ** 2 * step
-            self.pose_covariance = self.pose_covariance + np.diag([sigma_xy**2, sigma_xy**2, sigma_yaw2])
-        self._last_odom = np.asarray(odom, dtype=np.float64).copy()
+        if not self._odom.started:
+            self._odom.update(odom)
+            return
+        delta = self._odom.update(odom)
+        self.pose_in_current = compose(self.pose_in_current, delta)
+        step = float(np.hypot(delta[0], delta[1]))
+        sigma_xy = self.config.odometry_sigma_per_metre * step
+        sigma_yaw2 = np.radians(self.config.odometry_yaw_sigma_deg) ** 2 * step
+        self.pose_covariance = self.pose_covariance + np.diag([sigma_xy**2, sigma_xy**2, sigma_yaw2])
 
     def due(self, odom: NDArray[np.float64]) -> bool:
         if self.current is None or self._odom_at_update is None:
@@ -285,14 +285,14 @@ class GraphMaintainer:
     def start_at(self, vertex: int, pose_in_vertex: NDArray[np.float64], odom: NDArray[np.float64]) -> None:
         """Track from a known state (a navigation start, once localized): odometry counts from ``odom``."""
         self._switch(vertex, pose_in_vertex)
-        self._last_odom = np.asarray(odom, dtype=np.float64).copy()
-        self._odom_at_update = self._last_odom.copy()
+        self._odom.restart_from(odom)
+        self._odom_at_update = np.array(odom, dtype=np.float64)
 
     def forget(self) -> None:
         """No current location, no odometry: the state of a robot that has not localized yet."""
         self.current = None
         self.pose_in_current = np.zeros(3)
-        self._last_odom = None
+        self._odom.restart_from(None)
         self._odom_at_update = None
         self.last_verified = False
 
@@ -421,13 +421,13 @@ class GraphMaintainer:
         assert self.current is not None
         limit = self.config.max_correction
         if self.config.correction_per_metre is not None:
-            travelled = self._odometer - self._odometer_verified
+            travelled = self._odom.metres - self._odometer_verified
             limit = min(limit, self.config.correction_base + self.config.correction_per_metre * travelled)
         located = self.localizer.verify(query, self.current, self.pose_in_current, limit)
         self.counters.matches += 1
         if located is None:
             return False
-        self._odometer_verified = self._odometer
+        self._odometer_verified = self._odom.metres
         self.pose_in_current = located.pose
         self.pose_covariance = self._located_covariance(located)
         self.counters.corrections += 1
@@ -486,9 +486,9 @@ class GraphMaintainer:
         estimate = self._edges.get(key)
         if estimate is not None and estimate.count >= self.config.edge_measurements:
             return
-        if self._odometer - self._odometer_at_measure.get(key, -np.inf) < 1.0:
+        if self._odom.metres - self._odometer_at_measure.get(key, -np.inf) < 1.0:
             return
-        self._odometer_at_measure[key] = self._odometer
+        self._odometer_at_measure[key] = self._odom.metres
         self.counters.matches += 1
         located = self.localizer.verify(query, vertex, between(pose_uv, here), self.config.max_neighbour_jump)
         if located is None or located.result.covariance is None or located.result.overlap < self.matching.min_overlap:
@@ -511,9 +511,9 @@ class GraphMaintainer:
         config = self.config
         if config.closure_radius is None or self.current is None:
             return
-        if self._odometer - self._odometer_at_closure_check < config.closure_every:
+        if self._odom.metres - self._odometer_at_closure_check < config.closure_every:
             return
-        self._odometer_at_closure_check = self._odometer
+        self._odometer_at_closure_check = self._odom.metres
         robot, gates = self._hint_gates(odom, config.closure_radius)
         options = []
         for vertex, gate in gates.items():
@@ -538,16 +538,16 @@ class GraphMaintainer:
                 continue
             key = (self.current, vertex)
             pending = self._pending_closures.get(key)
-            if pending is None or self._odometer - pending[2] < config.closure_confirm_distance:
+            if pending is None or self._odom.metres - pending[2] < config.closure_confirm_distance:
                 if pending is None:
-                    self._pending_closures[key] = (pose_cv, covariance_cv, self._odometer)
+                    self._pending_closures[key] = (pose_cv, covariance_cv, self._odom.metres)
                 continue
             step = between(pending[0], pose_cv)
             agree = float(np.hypot(step[0], step[1])) <= config.closure_agreement and abs(step[2]) <= np.radians(
                 config.closure_agreement_deg
             )
             if not agree:
-                self._pending_closures[key] = (pose_cv, covariance_cv, self._odometer)  # start over from this one
+                self._pending_closures[key] = (pose_cv, covariance_cv, self._odom.metres)  # start over from this one
                 continue
             del self._pending_closures[key]
             if not self._edge_acceptable(self.current, vertex, pose_cv, covariance_cv):
@@ -664,15 +664,15 @@ class GraphMaintainer:
         against 2.)"""
         assert self.current is not None
         per_metre = self.localizer.config.drift_per_metre
-        made_here = self._odometer_at_vertex.get(self.current, self._odometer)
-        since_match = self._odometer - self._odometer_verified
+        made_here = self._odometer_at_vertex.get(self.current, self._odom.metres)
+        since_match = self._odom.metres - self._odometer_verified
         robot = np.asarray(odom, dtype=np.float64)
         through_current = compose(self.graph.vertices[self.current].pose_hint, self.pose_in_current)
         gates = {}
         for vertex, travelled in self._odometer_at_vertex.items():
             hint = self.graph.vertices[vertex].pose_hint[:2]
             if float(np.hypot(*(hint - through_current[:2]))) <= base + per_metre * (abs(made_here - travelled) + since_match):
-                gates[vertex] = base + per_metre * abs(self._odometer - travelled)
+                gates[vertex] = base + per_metre * abs(self._odom.metres - travelled)
         return robot, gates
 
     def _localize(self, query: PreparedGrid, points: NDArray[np.float32], odom: NDArray[np.float64]) -> bool:
@@ -824,7 +824,7 @@ class GraphMaintainer:
     # -- graph changes -----------------------------------------------------------------------------
 
     def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> None:
-        self._odometer_verified = self._odometer
+        self._odometer_verified = self._odom.metres
         self.current = vertex
         self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()
         self.pose_covariance = np.zeros((3, 3)) if covariance is None else np.asarray(covariance, dtype=np.float64).copy()
@@ -876,8 +876,8 @@ class GraphMaintainer:
         self.graph.add_edge(u, v, pose_uv)
 
     def _add_vertex(self, grid, points, odom, stamp: float, edge_from_current: bool) -> None:
-        vertex = self.graph.add_vertex(CroppedGrid.from_grid(grid), self.describe(points), odom, stamp, self._odometer)
-        self._odometer_at_vertex[vertex] = self._odometer
+        vertex = self.graph.add_vertex(CroppedGrid.from_grid(grid), self.describe(points), odom, stamp, self._odom.metres)
+        self._odometer_at_vertex[vertex] = self._odom.metres
         self.counters.new_vertices += 1
         if edge_from_current and self.current is not None:
             self._new_edge(self.current, vertex, self.pose_in_current, self.pose_covariance)

@@ -43,6 +43,7 @@ from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
 from navkit.geometry import between, compose, inverse, transform_points
 from navkit.obstacles import ObstacleMemory
+from navkit.odometer import Odometer
 from navkit.passages import PassageCheck, PassageConfig, returns_near
 from navkit.raster import FREE
 from navkit.scan import obstacle_points
@@ -183,8 +184,7 @@ class Navigator:
     _progress: ProgressCheck = field(default_factory=lambda: ProgressCheck(0.1, np.inf))
     _stuck_once: bool = False
     _tentative: Hypothesis | None = None  # the start-up hypothesis the robot drives by
-    _odometer: float = 0.0  # metres of odometry this trial
-    _last_odom: NDArray[np.float64] | None = None
+    _odometer: Odometer = field(default_factory=Odometer)  # of this trial
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
     passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
@@ -234,7 +234,7 @@ class Navigator:
         self._stuck_once = False
         self.explorer.reset()
         self._tentative = None
-        self._odometer, self._last_odom, self._lost_since = 0.0, None, None
+        self._odometer, self._lost_since = Odometer(), None
         self._removed = {}
         self._passages().clear()
 
@@ -268,7 +268,7 @@ class Navigator:
             raise RuntimeError("step() before set_goal()")
         if self.status.state != Status.ACTIVE:
             return Command()
-        self._count_odometry(obs.odom)
+        self._odometer.update(obs.odom)
         if not self.localized:
             return self._step_unlocalized(obs)
         before = self.maintainer.current
@@ -602,12 +602,6 @@ class Navigator:
 
     # -- what the status says (docs/DESIGN.md, "Trial end") ----------------------------------------------
 
-    def _count_odometry(self, odom: NDArray) -> None:
-        odom = np.asarray(odom, dtype=np.float64)
-        if self._last_odom is not None:
-            self._odometer += float(np.hypot(*(odom[:2] - self._last_odom[:2])))
-        self._last_odom = odom.copy()
-
     def _track_lost(self, event: str, vertex: int) -> None:
         """Lost: every update for ``LOST_AFTER_M`` of odometry kept the pose by odometry alone."""
         if event == "odometry":
@@ -619,8 +613,8 @@ class Navigator:
                     self._describe(f"found again in location {vertex}")
             return
         if self._lost_since is None:
-            self._lost_since = self._odometer
-        alone = self._odometer - self._lost_since
+            self._lost_since = self._odometer.metres
+        alone = self._odometer.metres - self._lost_since
         if self.status.stage != FailureStage.LOCALIZATION and alone >= LOST_AFTER_M:
             self._describe(f"lost in location {vertex}: odometry only for {alone:.1f} m, no location verified")
 
@@ -628,7 +622,7 @@ class Navigator:
         """The active status: the stage the robot is in (start-up, lost, or None) and what it is doing."""
         if not self.localized:
             stage: FailureStage | None = FailureStage.STARTUP
-        elif self._lost_since is not None and self._odometer - self._lost_since >= LOST_AFTER_M:
+        elif self._lost_since is not None and self._odometer.metres - self._lost_since >= LOST_AFTER_M:
             stage = FailureStage.LOCALIZATION
         else:
             stage = None

@@ -76,6 +76,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d
 
 from navkit.geometry import between, compose, transform_points, wrap_angle
+from navkit.odometer import Odometer
 from navkit.raster import FREE, OCCUPIED, UNKNOWN
 from navkit.scan import azimuth_bins, obstacle_points
 from navkit.scan_grid import GridConfig, grid_from_points
@@ -316,8 +317,7 @@ class Startup:
         self.looks = 0
         self.started: float | None = None
         self._last_look_odom: NDArray[np.float64] | None = None
-        self._odometer = 0.0
-        self._last_odom: NDArray[np.float64] | None = None
+        self._odom = Odometer()
         self._checked_at = -np.inf  # the odometer at the last look that verified every location
         self._perceived: tuple[float, PreparedGrid, NDArray[np.float32]] | None = None  # (stamp, query, descriptor)
         self.seen = 0
@@ -350,7 +350,7 @@ class Startup:
         every place farther off, look-alikes included."""
         if self._prior is None or self.map_poses is None or not len(self.map_poses):
             return None
-        if self._odometer > self.config.prior_distance or self._first_odom is None:
+        if self._odom.metres > self.config.prior_distance or self._first_odom is None:
             return None
         prior = compose(self._prior, between(self._first_odom, obs.odom))
         query, _ = self._perceive(obs)
@@ -371,7 +371,9 @@ class Startup:
             tracker.last_verified = True
             self.seen += 1
             self.from_given_pose = True
-            return Hypothesis(tracker, support=1, odometer_start=self._odometer, places={vertex}, alone_since=self._odometer)
+            return Hypothesis(
+                tracker, support=1, odometer_start=self._odom.metres, places={vertex}, alone_since=self._odom.metres
+            )
         return None
 
     def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
@@ -394,10 +396,7 @@ class Startup:
         if self.started is None:
             self.started = obs.stamp
             self._first_odom = np.asarray(obs.odom, dtype=np.float64).copy()
-        if self._last_odom is not None:
-            delta = between(self._last_odom, obs.odom)
-            self._odometer += float(np.hypot(delta[0], delta[1]))
-        self._last_odom = np.asarray(obs.odom, dtype=np.float64).copy()
+        self._odom.update(obs.odom)
         for h in self.hypotheses:
             h.tracker.integrate(obs.odom)
         if not (force or self._due(obs.odom)):
@@ -408,11 +407,12 @@ class Startup:
         if given is not None:
             return given
         self._look(obs, driven, route)
-        if self.config.far_evidence and self._odometer >= self._history_at + 1.0:
-            self._history_at = self._odometer
-            self._history.append((self._last_odom.copy(), *scan_beams(obs.points, self.maintainer.grid_config, 2.0)))
+        last = self._odom.last
+        if self.config.far_evidence and last is not None and self._odom.metres >= self._history_at + 1.0:
+            self._history_at = self._odom.metres
+            self._history.append((last.copy(), *scan_beams(obs.points, self.maintainer.grid_config, 2.0)))
         committed = self._committed()
-        if committed is not None and self.config.check_all and self._odometer > self._checked_at:
+        if committed is not None and self.config.check_all and self._odom.metres > self._checked_at:
             # place recognition may rank the right location low (a look-alike ranked above it, 29 m
             # away, committed on a loop scene): no commitment while another place verifies too
             if self._recognise(obs, check_all=True):
@@ -431,7 +431,7 @@ class Startup:
                 self._relocate(h, self._perceive(obs)[0], obs.odom)
         self._weigh(self._far_against(obs))
         alone = len(self.hypotheses) == 1
-        check_all = self.config.check_all and (not self.hypotheses or alone) and self._odometer >= self._checked_at + 1.0
+        check_all = self.config.check_all and (not self.hypotheses or alone) and self._odom.metres >= self._checked_at + 1.0
         self._recognise(obs, check_all)
 
     def _weigh(self, far: list[bool] | None = None) -> None:
@@ -445,8 +445,8 @@ class Startup:
             if ok and not against:
                 h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
                 h.places.add(h.vertex)
-                if self._last_odom is not None:
-                    h.verified_at(self._last_odom)
+                if (last := self._odom.last) is not None:
+                    h.verified_at(last)
                 h.alone_support += int(h.alone_since is not None)
             else:
                 h.misses += int(telling or against)
@@ -455,7 +455,7 @@ class Startup:
         config = self.config
         self.hypotheses = [h for h in self.hypotheses if h.misses < config.drop_after and h.unverified < config.drop_unverified]
         if len(self.hypotheses) == 1 and self.hypotheses[0].alone_since is None:
-            self.hypotheses[0].alone_since, self.hypotheses[0].alone_support = self._odometer, 0
+            self.hypotheses[0].alone_since, self.hypotheses[0].alone_support = self._odom.metres, 0
 
     def _recognise(self, obs: Observation, check_all: bool) -> int:
         """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
@@ -463,7 +463,7 @@ class Startup:
         m = self.maintainer
         query, descriptor = self._perceive(obs)
         if check_all:
-            self._checked_at = self._odometer
+            self._checked_at = self._odom.metres
             self.checks += 1
         top_k = len(m.graph) if check_all else self.config.top_k
         found = m.localizer.localize(query, descriptor, top_k=top_k)
@@ -490,12 +490,12 @@ class Startup:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 tracker.last_verified = True  # this look verified it
-                hypothesis = Hypothesis(tracker, support=1, odometer_start=self._odometer, places={located.vertex})
+                hypothesis = Hypothesis(tracker, support=1, odometer_start=self._odom.metres, places={located.vertex})
                 hypothesis.verified_at(obs.odom)
                 self.hypotheses.append(hypothesis)
                 self.seen += 1
                 added += 1
-        alone = self._odometer if len(self.hypotheses) == 1 else None
+        alone = self._odom.metres if len(self.hypotheses) == 1 else None
         for h in self.hypotheses if added else []:  # a new rival: nobody is alone; a first find: alone from now
             h.alone_since, h.alone_support = alone, 1 if alone is not None else 0
         return added
@@ -605,10 +605,10 @@ class Startup:
         h, config = self.hypotheses[0], self.config
         if not h.tracker.last_verified or h.alone_since is None:
             return None
-        moved = self._odometer - h.odometer_start
+        moved = self._odom.metres - h.odometer_start
         if h.support < config.confirm_looks or moved < config.confirm_distance:
             return None
-        if h.alone_support < config.confirm_alone_looks or self._odometer - h.alone_since < config.confirm_alone_distance:
+        if h.alone_support < config.confirm_alone_looks or self._odom.metres - h.alone_since < config.confirm_alone_distance:
             return None
         # a room and its mirror image agree from inside; the corridor outside the door tells them apart
         one_place = config.confirm_distance_one_place
@@ -625,7 +625,7 @@ class Startup:
     @property
     def odometer(self) -> float:
         """Metres of odometry since the start-up began."""
-        return self._odometer
+        return self._odom.metres
 
     def ambiguous(self) -> bool:
         """Two or more hypotheses equally supported (within ``ambiguous_support`` looks) after
@@ -647,7 +647,7 @@ class Startup:
             return (
                 len(h.places) < config.confirm_places
                 and h.support >= 2 * config.ambiguous_looks
-                and self._odometer - h.odometer_start >= config.lone_explore_distance
+                and self._odom.metres - h.odometer_start >= config.lone_explore_distance
             )
         if len(self.hypotheses) < 2:
             return False

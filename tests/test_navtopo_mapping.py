@@ -358,7 +358,7 @@ def test_a_place_far_from_the_robot_by_the_current_locations_hint_is_no_loop_clo
         graph.add_vertex(grid, np.ones(4), np.array(hint), float(vertex), travelled)
         maintainer._odometer_at_vertex[vertex] = travelled
     maintainer.current, maintainer.pose_in_current = 2, np.array([0.3, 3.8, 0.0])  # the robot at (3.3, 2.8)
-    maintainer._odometer = maintainer._odometer_verified = 1310.0
+    maintainer._odom.metres = maintainer._odometer_verified = 1310.0
     robot, gates = maintainer._hint_gates(np.array([3.3, 2.8, 1.6]), base=3.0)
     assert np.allclose(robot[:2], [3.3, 2.8])
     # 26 m off: the odometry gate alone (3 + 0.05 x 920 m = 49 m) let it in; through location 2's hint

@@ -47,9 +47,9 @@ def _look(
 ) -> None:
     """A look after ``moved`` metres (toward ``heading``, rad) that verifies ``hypotheses[k]`` iff
     ``verdicts[k]`` (dropped ones are not asked)."""
-    startup._odometer += moved
-    last = startup._last_odom if startup._last_odom is not None else np.zeros(3)
-    startup._last_odom = last + moved * np.array([np.cos(heading), np.sin(heading), 0.0])
+    if not startup._odom.started:
+        startup._odom.update(np.zeros(3))
+    startup._odom.update(startup._odom.last + moved * np.array([np.cos(heading), np.sin(heading), 0.0]))
     for h, ok in zip(hypotheses, verdicts, strict=True):
         h.tracker.last_verified = ok
     startup._weigh()
@@ -176,7 +176,7 @@ def test_the_far_evidence_counts_against_the_contradicted_hypothesis_only():
     for _ in range(2):
         _look(startup, [right, shifted], [True, True])
     for _ in range(3):  # both verified by the matcher, one contradicted by the far beams
-        startup._odometer += 0.25
+        startup._odom.metres += 0.25
         startup._weigh([False, True])
     assert startup.hypotheses == [right]
 

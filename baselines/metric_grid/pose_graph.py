@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from navkit import geometry as se2
 from navkit.files import atomic_write
+from navkit.odometer import Odometer
 from navkit.odometry import se2_to_se3, se3_to_se2
 
 from .scan2d import voxel_filter_2d
@@ -198,8 +199,7 @@ class PoseGraph:
         self.keyframes: list[Keyframe] = []
         self.loops: list[LoopClosure] = []
         self._estimate = np.zeros((0, 3))
-        self._travel = 0.0
-        self._last_odom: NDArray[np.float64] | None = None
+        self._odometer = Odometer()  # the travelled distance, from every scan offered
         self._graph = gtsam.NonlinearFactorGraph()
         self._isam = self._new_isam()
         self.loop_attempts = 0
@@ -226,16 +226,14 @@ class PoseGraph:
         Call it for every scan: the travelled distance is accumulated from all of them.
         """
         odom_pose = np.asarray(odom_pose, dtype=np.float64)
-        if self._last_odom is not None:
-            self._travel += float(se2.distance(self._last_odom, odom_pose))
-        self._last_odom = odom_pose.copy()
+        self._odometer.update(odom_pose)
         if not self.needs_keyframe(odom_pose):
             return False
         if obstacle_points_2d is None:
             raise ValueError("add_scan: a keyframe is due, its obstacle points are needed")
         points = voxel_filter_2d(obstacle_points_2d, self.config.voxel_size)
         ranges = np.zeros(0, np.float16) if free_ranges is None else np.asarray(free_ranges, dtype=np.float16).copy()
-        self.keyframes.append(Keyframe(odom_pose.copy(), self._travel, points, ranges))
+        self.keyframes.append(Keyframe(odom_pose.copy(), self._odometer.metres, points, ranges))
         self._add_odometry_factor(len(self.keyframes) - 1)
         if self.config.loop.enabled:
             self._close_loops(len(self.keyframes) - 1)
@@ -396,7 +394,7 @@ class PoseGraph:
 
     @property
     def travel(self) -> float:
-        return self._travel
+        return self._odometer.metres
 
     @property
     def nbytes(self) -> int:
@@ -437,7 +435,7 @@ class PoseGraph:
             "format": FORMAT,
             "keyframes": len(self.keyframes),
             "loops": len(self.loops),
-            "travel_m": self._travel,
+            "travel_m": self._odometer.metres,
             "config": self.config.model_dump(mode="json"),
         }
         atomic_write(directory / "pose_graph.json", json.dumps(meta, indent=2))
@@ -462,8 +460,8 @@ class PoseGraph:
                     np.asarray(free, dtype=np.float16).copy(),
                 )
             )
-        graph._travel = float(meta["travel_m"])
-        graph._last_odom = graph.keyframes[-1].odom_pose.copy() if graph.keyframes else None
+        graph._odometer.metres = float(meta["travel_m"])
+        graph._odometer.restart_from(graph.keyframes[-1].odom_pose if graph.keyframes else None)
         graph._rebuild(arrays)
         return graph
 

@@ -51,7 +51,8 @@ from numpy.typing import ArrayLike, NDArray
 from navkit import grid_search
 from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
-from navkit.geometry import between, transform_points
+from navkit.geometry import transform_points
+from navkit.odometer import Odometer
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.passages import PassageCheck, returns_near
 from navkit.raster import FREE, OCCUPIED
@@ -124,9 +125,8 @@ class MetricGrid:
             (tight + cfg.planning.inflation_margin, tight),
             cfg.planning.block_check_distance,
         )
-        self._odometer = 0.0  # m of odometry this trial (a kidnapped start's exploring moves run on it)
+        self._odometer = Odometer()  # of this trial (a kidnapped start's exploring moves run on it)
         self._turned = 0.0  # rad turned this trial while no pose was found
-        self._last_odom: NDArray[np.float64] | None = None
         self.explore_counters = {"explore_moves": 0, "explore_blocked": 0}
         self.passages = PassageCheck(cfg.planning.passages, self.robot_radius)
         self.progress = ProgressCheck(cfg.planning.progress_distance, cfg.planning.progress_time)
@@ -267,7 +267,7 @@ class MetricGrid:
         self.plan_counters = dict.fromkeys(self.plan_counters, 0)
         self.explorer.reset()
         self.explore_counters = dict.fromkeys(self.explore_counters, 0)
-        self._odometer, self._turned, self._last_odom = 0.0, 0.0, None
+        self._odometer, self._turned = Odometer(), 0.0
         if self.planner is not None:
             self.planner.forget()  # cold: the first plan makes its line-of-sight rasters again
 
@@ -300,7 +300,9 @@ class MetricGrid:
         if self.status.state != Status.ACTIVE:
             return Command()
         points = voxel_filter_2d(obstacle_points(obs.points, self.band), self.config.localization.voxel)
-        self._count_odometry(obs.odom)
+        turn = abs(float(self._odometer.update(obs.odom)[2]))
+        if not self.tracker.localized:
+            self._turned += turn
         pose = self.tracker.track(obs, points)
         if pose is None:  # no pose found on the map yet: turn in place to see more, for a while
             if self.tracker.search_timed_out(obs.stamp):
@@ -353,24 +355,13 @@ class MetricGrid:
             return Command()
         return command
 
-    def _count_odometry(self, odom: NDArray) -> None:
-        """The trial's odometer, and the turning while no pose is found (a kidnapped start turns in
-        place for ``explore_after_deg`` before it explores)."""
-        odom = np.asarray(odom, dtype=np.float64)
-        if self._last_odom is not None:
-            step = between(self._last_odom, odom)
-            self._odometer += float(np.hypot(step[0], step[1]))
-            if not self.tracker.localized:
-                self._turned += abs(float(step[2]))
-        self._last_odom = odom.copy()
-
     def _explore(self, obs: Observation) -> Command:
         """A kidnapped start not confirmed by turning in place: moves toward open space for new views
         (``navkit.explore``, as NavTopo's start-up), each ``explore_distance`` long."""
         explorer = self.explorer
         explorer.record(obs.odom)
-        if not explorer.under_way(self._odometer):
-            explorer.begin(obs.stamp, self._odometer)
+        if not explorer.under_way(self._odometer.metres):
+            explorer.begin(obs.stamp, self._odometer.metres)
         return explorer.step(obs, self.explore_counters)
 
     def _check_passage(self, obs: Observation, pose: NDArray) -> bool:

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import geometry as se2
+from navkit.odometer import Odometer
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.types import Observation
 
@@ -47,15 +48,18 @@ class Candidate:
     def __init__(self, map_from_odom: NDArray[np.float64], odom_pose: NDArray[np.float64]) -> None:
         self.map_from_odom = map_from_odom
         self.agreed = 1
-        self.turned = 0.0  # rad of odometry turning since its first find
-        self.moved = 0.0  # m of odometry motion since its first find
-        self._last = odom_pose.copy()
+        self.odometer = Odometer()  # since its first find
+        self.odometer.update(odom_pose)
 
-    def moved_to(self, odom_pose: NDArray[np.float64]) -> None:
-        step = se2.between(self._last, odom_pose)
-        self.turned += abs(float(step[2]))
-        self.moved += float(np.hypot(step[0], step[1]))
-        self._last = odom_pose.copy()
+    @property
+    def turned(self) -> float:
+        """rad of odometry turning since its first find."""
+        return self.odometer.radians
+
+    @property
+    def moved(self) -> float:
+        """m of odometry motion since its first find."""
+        return self.odometer.metres
 
 
 class PoseTracker:
@@ -209,7 +213,7 @@ class PoseTracker:
         config = self.relocalization
         candidate = self._candidate
         if candidate is not None:
-            candidate.moved_to(odom_pose)
+            candidate.odometer.update(odom_pose)
         if self._last_look is not None:
             step = se2.between(self._last_look, odom_pose)
             turned, moved = abs(float(step[2])), float(np.hypot(step[0], step[1]))
