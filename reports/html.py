@@ -132,6 +132,7 @@ def manifest_html(section: RunSection) -> str:
         ("versions", ", ".join(f"{k} {v}" for k, v in m.versions.items()) or "–"),
         ("machine", _json(m.machine)),
         ("files missing", ", ".join(section.run.missing) or "none"),
+        ("records repeated", ", ".join(f"{s} trial {t}" for s, t in dict.fromkeys(section.run.repeated)) or "none"),
     ]
     items = "".join(f"<dt>{_e(k)}</dt><dd>{_e(v)}</dd>" for k, v in facts)
     config = yaml.safe_dump(m.config, sort_keys=False)

@@ -309,11 +309,13 @@ class TrialRecord(Record):
     worker: dict[str, Any] | None = None  # where it ran (host, pid, node); None if no worker did
 
 
-def read_trials(path: Path, skip_unreadable: bool = False) -> list[TrialRecord]:
+def read_trials(path: Path, skip_unreadable: bool = False, repeated: list[tuple[Any, Any]] | None = None) -> list[TrialRecord]:
     """The finished trials of ``trials.jsonl``: the first record of each (system, trial). A torn
     last line (no newline after it: a run killed while writing) is skipped; any other line that
     is not JSON is an error naming the file and the line, or skipped with ``skip_unreadable``
-    (the runner's own reading on resume); a record that is not a trial record is an error."""
+    (the runner's own reading on resume); a record that is not a trial record is an error.
+    ``repeated`` gets the (system, trial) of every record after the first of its trial (two
+    drivers wrote the folder: reports flag it)."""
     if not path.is_file():
         return []
     try:
@@ -335,7 +337,10 @@ def read_trials(path: Path, skip_unreadable: bool = False) -> list[TrialRecord]:
             raise RunFormatError(f"{path}: line {number}: not JSON ({exc.msg})") from None
         if not isinstance(data, dict):
             raise RunFormatError(f"{path}: line {number}: expected a JSON object")
-        first.setdefault((data.get("system"), data.get("trial")), data)
+        key = (data.get("system"), data.get("trial"))
+        if key in first and repeated is not None:
+            repeated.append(key)
+        first.setdefault(key, data)
     return [validate(TrialRecord, data, path, f"{system} trial {trial}") for (system, trial), data in first.items()]
 
 

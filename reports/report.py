@@ -21,6 +21,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 from pathlib import Path, PurePath
+from typing import Any
 
 import yaml
 
@@ -96,6 +97,8 @@ def distinct_runs(run_dirs: list[Path]) -> tuple[list[Run], list[str]]:
             notes.append(f"{run_dir} is the run folder {named.root}: counted once")
             continue
         run = Run.load(run_dir)
+        if run.repeated:
+            notes.append(repeated_note(run))
         copied = next((r for r in runs if r.manifest.created is not None and r.manifest == run.manifest), None)
         if copied is None:
             runs.append(run)
@@ -105,6 +108,15 @@ def distinct_runs(run_dirs: list[Path]) -> tuple[list[Run], list[str]]:
             raise RunFormatError(f"{run_dir}: a copy of the run in {copied.root} ({same}) with other trials: report one of them")
         notes.append(f"{run_dir} is a copy of the run in {copied.root} ({same}): counted once")
     return runs, notes
+
+
+def repeated_note(run: Run) -> str:
+    """The line of a run whose trials.jsonl holds a trial more than once (two drivers wrote it)."""
+    counts: dict[tuple[Any, Any], int] = {}
+    for key in run.repeated:
+        counts[key] = counts.get(key, 1) + 1
+    which = ", ".join(f"{system} trial {trial} ({n} records)" for (system, trial), n in counts.items())
+    return f"{run.root / 'trials.jsonl'}: {which}: the first record of each is counted (two drivers wrote this folder)"
 
 
 def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | None = None, study_title: str = "") -> Report:

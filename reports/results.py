@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from functools import cached_property
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import yaml
@@ -152,6 +152,7 @@ class Run:
         self.navigation = navigation
         self.ground_truth = ground_truth
         self.missing = missing
+        self.repeated: list[tuple[Any, Any]] = []  # (system, trial) of records after their trial's first
 
     @classmethod
     def load(cls, root: Path | str, require_summary: bool = True) -> Run:
@@ -175,12 +176,15 @@ class Run:
         else:
             missing.append("summary.json")
         trials_path = root / "trials.jsonl"
-        trials = read_trials(trials_path)
+        repeated: list[tuple[Any, Any]] = []
+        trials = read_trials(trials_path, repeated=repeated)
         trials.sort(key=lambda r: (r.system, r.trial))
         mapping = {name: _report(MappingReport, root / "mapping" / f"{name}.json", missing) for name in manifest.systems}
         navigation = {name: _report(NavigationReport, root / "navigation" / f"{name}.json", missing) for name in manifest.systems}
         ground_truth = cls._load_ground_truth(root / "ground_truth", missing)
-        return cls(root, manifest, summary, trials, mapping, navigation, ground_truth, missing)
+        run = cls(root, manifest, summary, trials, mapping, navigation, ground_truth, missing)
+        run.repeated = repeated
+        return run
 
     @staticmethod
     def _load_ground_truth(folder: Path, missing: list[str]) -> GroundTruth | None:

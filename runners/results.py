@@ -10,19 +10,31 @@ temporary files included.
 
 from __future__ import annotations
 
+import datetime as dt
 import fcntl
 import io
 import json
 import os
+import socket
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from navkit.errors import BenchError
 from navkit.files import atomic_write
 from reports.records import Record, TrialRecord, read_trials
 from reports.records import read_json as read_json  # the one reader of a results folder's JSON files
+
+
+class FolderInUse(BenchError):
+    """A run folder another driver holds (``RunDir.hold``): refused before anything is written (exit 2)."""
+
+    exit_code = 2
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -116,6 +128,38 @@ class RunDir:
     def trajectory_path(self, system: str, trial: int, estimate: bool = False) -> Path:
         return self.root / "trajectories" / system / f"trial-{trial}{'.est' if estimate else ''}.tum"
 
+    @contextmanager
+    def hold(self) -> Iterator[None]:
+        """The folder for one driver: an exclusive lock on ``.driver.lock`` for the run's whole life,
+        which names its holder (host, pid, start, command). The operating system frees it when the
+        driver's process ends, however it ends. ``FolderInUse`` if another driver holds it."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        path = self.root / ".driver.lock"
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = _holder(fd)
+            os.close(fd)
+            raise FolderInUse(
+                f"{self.root}: another driver is running this run ({holder}); one driver per run folder: "
+                "wait for it to end, or stop it and --resume"
+            ) from None
+        try:
+            me = {
+                "host": socket.gethostname(),
+                "pid": os.getpid(),
+                "since": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+                "command": " ".join([os.path.basename(sys.argv[0]), *sys.argv[1:]]),
+            }
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, (json.dumps(me) + "\n").encode(), 0)
+            yield
+        finally:
+            os.ftruncate(fd, 0)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+
     def append_trial(self, record: TrialRecord) -> None:
         """Append one record as one flushed line, under a lock shared by every writer process."""
         self.root.mkdir(parents=True, exist_ok=True)
@@ -141,6 +185,15 @@ class RunDir:
         text = self.trials_path.read_text()
         if text and not text.endswith("\n"):
             atomic_write(self.trials_path, text[: text.rfind("\n") + 1])
+
+
+def _holder(fd: int) -> str:
+    """Who holds a driver lock, as its file says (it may be mid-write: then "unknown")."""
+    try:
+        data = json.loads(os.pread(fd, 4096, 0).decode())
+        return f"pid {data['pid']} on {data['host']} since {data['since']}: {data['command']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "holder unknown"
 
 
 def disk_bytes(directory: Path) -> int:

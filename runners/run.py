@@ -17,6 +17,7 @@ import shutil
 import socket
 import subprocess
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -216,64 +217,67 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
     slots: the executor's; share: the slots this run may count on (its mapping drives, at most one
     a system: fewer drives cost less when other runs fill the slots; see ``MappingJob``)."""
     say = hooks.on_stage or (lambda _stage, _value: None)
-    if options.resume is not None:
-        run = RunDir(options.resume)
-        manifest = Manifest.read(run.manifest_path)
-        systems = list(manifest.systems)
-        seed = manifest.seed
-        trial_count = manifest.trial_count
-        configs = manifest.config
-        recorded = manifest.given("protocol")  # a manifest from before the protocol: exact initial poses
-        protocol = TrialProtocol.from_json(recorded.as_json() if recorded is not None else None)
-        setting_override = manifest.setting_override
-        scenario = apply_setting(scenario, setting_override)
-    else:
-        systems = options.systems
-        seed = scenario.spec.seed if options.seed is None else options.seed
-        trial_count = len(scenario.trials) if options.trials is None else min(options.trials, len(scenario.trials))
-        protocol = options.protocol
-        setting_override = options.setting
-        scenario = apply_setting(scenario, setting_override)
-        configs = resolved_configs(systems, options.config_overrides, setting_of(scenario))
-        run = new_run_dir(options, scenario, seed)
-        run.root.mkdir(parents=True, exist_ok=True)
-        manifest = new_manifest(scenario, systems, seed, setting_override, protocol, trial_count, configs)
-        write_json(run.manifest_path, manifest)
-        if options.out is None:
-            point_latest(run.root)
-    say("run_dir", run.root)
-    write_ground_truth(scenario, run.root, trial_count)  # what reports draw against (skipped if present)
-    entries = {name: get_system(name) for name in systems}
+    with ExitStack() as held:  # the folder, for this driver alone (RunDir.hold)
+        if options.resume is not None:
+            run = RunDir(options.resume)
+            held.enter_context(run.hold())
+            manifest = Manifest.read(run.manifest_path)
+            systems = list(manifest.systems)
+            seed = manifest.seed
+            trial_count = manifest.trial_count
+            configs = manifest.config
+            recorded = manifest.given("protocol")  # a manifest from before the protocol: exact initial poses
+            protocol = TrialProtocol.from_json(recorded.as_json() if recorded is not None else None)
+            setting_override = manifest.setting_override
+            scenario = apply_setting(scenario, setting_override)
+        else:
+            systems = options.systems
+            seed = scenario.spec.seed if options.seed is None else options.seed
+            trial_count = len(scenario.trials) if options.trials is None else min(options.trials, len(scenario.trials))
+            protocol = options.protocol
+            setting_override = options.setting
+            scenario = apply_setting(scenario, setting_override)
+            configs = resolved_configs(systems, options.config_overrides, setting_of(scenario))
+            run = new_run_dir(options, scenario, seed)
+            run.root.mkdir(parents=True, exist_ok=True)
+            held.enter_context(run.hold())
+            manifest = new_manifest(scenario, systems, seed, setting_override, protocol, trial_count, configs)
+            write_json(run.manifest_path, manifest)
+            if options.out is None:
+                point_latest(run.root)
+        say("run_dir", run.root)
+        write_ground_truth(scenario, run.root, trial_count)  # what reports draw against (skipped if present)
+        entries = {name: get_system(name) for name in systems}
 
-    if options.maps_from is not None and options.resume is None:
-        reuse_maps(options.maps_from, run, systems, manifest)
+        if options.maps_from is not None and options.resume is None:
+            reuse_maps(options.maps_from, run, systems, manifest)
 
-    files = ScenarioFiles.of(scenario)
-    # stage 1: mapping, a job per drive (skipped for systems whose map and report are there)
-    todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
-    if todo:
-        say("mapping", todo)
-        drives = min(share, len(todo))
-        groups = [todo[k::drives] for k in range(drives)]
-        jobs = [
-            MappingJob(
-                files,
-                {name: configs[name] for name in group},
-                seed,
-                setting_override,
-                sorted({m for name in group for m in modules_of(entries[name])}),
-            )
-            for group in groups
-        ]
-        yield from map_systems(run, jobs, hooks.on_mapping)
-    mapping = {name: MappingReport.read(run.mapping_path(name)) for name in systems}
-    trials = TrialPlan(scenario, files, systems, configs, mapping, seed, trial_count, setting_override, protocol)
-    yield from navigate(run, trials, options, slots, hooks.on_trial, say)
-    if run.failed_stages:
-        return run  # no summary: the run is unfinished, and --resume retries the stage
-    write_summary(run, systems, mapping)
-    say("done", run)
-    return run
+        files = ScenarioFiles.of(scenario)
+        # stage 1: mapping, a job per drive (skipped for systems whose map and report are there)
+        todo = [name for name in systems if not (run.mapping_path(name).is_file() and run.map_dir(name).is_dir())]
+        if todo:
+            say("mapping", todo)
+            drives = min(share, len(todo))
+            groups = [todo[k::drives] for k in range(drives)]
+            jobs = [
+                MappingJob(
+                    files,
+                    {name: configs[name] for name in group},
+                    seed,
+                    setting_override,
+                    sorted({m for name in group for m in modules_of(entries[name])}),
+                )
+                for group in groups
+            ]
+            yield from map_systems(run, jobs, hooks.on_mapping)
+        mapping = {name: MappingReport.read(run.mapping_path(name)) for name in systems}
+        trials = TrialPlan(scenario, files, systems, configs, mapping, seed, trial_count, setting_override, protocol)
+        yield from navigate(run, trials, options, slots, hooks.on_trial, say)
+        if run.failed_stages:
+            return run  # no summary: the run is unfinished, and --resume retries the stage
+        write_summary(run, systems, mapping)
+        say("done", run)
+        return run
 
 
 def new_manifest(
@@ -399,9 +403,7 @@ class NavigationStage:
     """The navigation stage of one run, as its jobs report: the trials done (on disk before, or
     recorded since), the trial each job started last, the failed stages."""
 
-    def __init__(
-        self, run: RunDir, plan: TrialPlan, options: RunOptions, on_trial: Callable[[TrialRecord], None] | None
-    ) -> None:
+    def __init__(self, run: RunDir, plan: TrialPlan, options: RunOptions, on_trial: Callable[[TrialRecord], None] | None) -> None:
         self.run, self.plan, self.options, self.on_trial = run, plan, options, on_trial
         run.repair_trials()
         self.done = {(r.system, r.trial) for r in run.read_trials()}

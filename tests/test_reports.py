@@ -21,7 +21,7 @@ from crafted_run import write_crafted_run
 
 from reports import stats
 from reports.plots import graph_layout, grid_layer, run_plots
-from reports.report import make_report, reproduce_command
+from reports.report import make_report, repeated_note, reproduce_command
 from reports.results import Run, RunFormatError
 from reports.tables import cells, latex, markdown_document, table_rows, to_csv
 
@@ -258,7 +258,7 @@ def _files(folder):
 def test_the_report_writes_tables_plots_config_and_a_self_contained_page(crafted):
     made = make_report([crafted])
     out = crafted / "report"
-    assert made.out == out and made.notes == []
+    assert made.out == out and made.notes == [repeated_note(Run.load(crafted))]  # a trial written twice
     written = set(_files(out))
     assert {"table.md", "table.csv", "table.tex", "config.yaml", "report.html"} <= written
     for name in ("map_navtopo", "map_metric_grid", "trajectories_navtopo", "planning", "efficiency", "map_growth"):
@@ -291,6 +291,21 @@ def test_a_report_made_from_a_copied_folder_is_the_same_file_for_file(crafted, t
     assert set(original) == set(copied)
     differing = [name for name in original if original[name] != copied[name]]
     assert differing == []
+
+
+def test_a_trial_recorded_twice_is_counted_once_and_flagged(crafted):
+    """The crafted run's trials.jsonl holds navtopo trial 0 twice (two drivers on one folder, before
+    the folder lock): the first record counts, and the report says which trial was repeated."""
+    run = Run.load(crafted)
+    assert run.repeated == [("navtopo", 0)]
+    counted = [r for r in run.trials if (r.system, r.trial) == ("navtopo", 0)]
+    assert len(counted) == 1 and counted[0].success and counted[0].reason != "written twice: the first record counts"
+    made = make_report([crafted])
+    assert made.notes == [
+        f"{crafted / 'trials.jsonl'}: navtopo trial 0 (2 records): the first record of each is counted "
+        "(two drivers wrote this folder)"
+    ]
+    assert "<dt>records repeated</dt><dd>navtopo trial 0</dd>" in made.html.read_text()
 
 
 def test_several_runs_make_one_combined_report(tmp_path):

@@ -50,6 +50,14 @@ def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial
     before = RunDir(out).read_trials()
     assert len(before) >= 1
 
+    # a second driver on a folder another one holds is refused in one line, and writes nothing
+    listing = sorted(p.relative_to(out) for p in out.rglob("*"))
+    with RunDir(out).hold():
+        refused = CliRunner().invoke(app, ["run", "--resume", str(out)])
+    assert refused.exit_code != 0 and "another driver is running this run" in refused.output, refused.output
+    assert f"pid {os.getpid()}" in refused.output and "Traceback" not in refused.output
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == listing and RunDir(out).read_trials() == before
+
     result = CliRunner().invoke(app, ["run", "--resume", str(out)])
     assert result.exit_code == 0, result.output
 

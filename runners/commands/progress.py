@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 from rich.markup import escape
 from rich.table import Table
 
+from navkit.errors import BenchError
 from runners.commands.console import console, err
 from runners.commands.errors import Interrupted, RunsFailed
 
@@ -153,6 +154,8 @@ def report_outcomes(shown: list[RunProgress], outcomes: list[Outcome]) -> None:
 def run_error(run: RunProgress, outcome: Outcome) -> str:
     """The line of a run that raised; its traceback is written to the run's logs/error.log."""
     exc = outcome.error
+    if isinstance(exc, BenchError):  # refused (a folder another driver holds): its one line, nothing written
+        return str(exc)
     message = f"run of {run.label} failed: {type(exc).__name__}: {exc}"
     if run.folder is not None:
         log = run.folder / "logs" / "error.log"
