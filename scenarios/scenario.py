@@ -3,6 +3,7 @@ stage with ``world.changes`` in place), mapping route and trials."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -108,13 +109,19 @@ def bundled_names() -> list[str]:
 
 
 def resolve_path(name_or_path: str | Path) -> Path:
-    """A bundled scenario name, or a path to a YAML file."""
+    """A bundled scenario name, or a path to a YAML file. A bare name (no folder, no .yaml) is the
+    bundled scenario's even where a local folder has that name (``--out tiny`` made one); a local
+    file of that name is a clash, refused in one line (``./tiny`` names the file)."""
+    text = str(name_or_path)
     candidate = Path(name_or_path)
+    bundled = BUNDLED_DIR / f"{text}.yaml"
+    bare = "/" not in text and os.sep not in text and candidate.suffix not in (".yaml", ".yml")
+    if bare and bundled.is_file():
+        if candidate.is_file():
+            raise ScenarioError(text, "", f"names both a bundled scenario and the file here; write ./{text} for the file")
+        return bundled
     if candidate.suffix in (".yaml", ".yml") or candidate.exists():
         return candidate
-    bundled = BUNDLED_DIR / f"{name_or_path}.yaml"
-    if bundled.is_file():
-        return bundled
     raise ScenarioError(
         str(name_or_path), "", f"no such scenario file, nor a bundled scenario (bundled: {', '.join(bundled_names())})"
     )

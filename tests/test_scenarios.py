@@ -171,6 +171,18 @@ def test_depot_map_loads_with_origin_at_the_lower_left_and_rows_flipped():
     assert world.bounds == pytest.approx((0.0, 0.0, 604 * 0.05, 307 * 0.05))
 
 
+def test_a_bundled_name_is_not_hidden_by_a_local_folder_and_a_local_file_of_that_name_is_named(tmp_path, monkeypatch):
+    from scenarios.scenario import BUNDLED_DIR, resolve_path
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tiny").mkdir()  # a results folder made by `run tiny --out tiny`
+    assert resolve_path("tiny") == BUNDLED_DIR / "tiny.yaml"
+    (tmp_path / "depot").write_text("a file named like a bundled scenario")
+    with pytest.raises(ScenarioError, match="names both a bundled scenario and the file here; write ./depot"):
+        resolve_path("depot")
+    assert resolve_path("./depot") == Path("./depot") and resolve_path("mine.yaml") == Path("mine.yaml")
+
+
 def test_tiny_resolves_to_a_short_route_and_three_trials():
     scenario = load_scenario("tiny")
     summary = scenario.summary()
