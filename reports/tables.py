@@ -589,9 +589,11 @@ def _agreement(same_order: bool) -> str:
 # ---------------------------------------------------------------------------------------------
 # the rich table the CLI prints after a run (runners/cli.py, print_summary)
 
+# in the order the terminal keeps them when it is narrow (``runners.commands.progress.print_summary``)
 COLUMNS = [
     ("system", "system"),
     ("success", "success"),
+    ("failures", "failures"),
     ("efficiency", "efficiency"),
     ("spl", "SPL"),
     ("first_plan_ms", "first plan median (ms)"),
@@ -614,6 +616,7 @@ def rows(run_dir: Path) -> list[dict[str, str]]:
             {
                 "system": name,
                 "success": f"{s.successes}/{s.trials}",
+                "failures": ", ".join(f"{reason} {n}" for reason, n in _by_count(s.failure_reasons).items()) or "–",
                 "efficiency": num(s.efficiency_mean),
                 "spl": num(s.spl_mean),
                 "first_plan_ms": num(s.first_plan_ms.median, 2),

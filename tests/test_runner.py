@@ -179,3 +179,74 @@ def test_maps_from_an_earlier_run_skips_mapping_and_refuses_another_seed(tmp_pat
         app, ["run", scenario, "--systems", "oracle", "--seed", "5", "--maps-from", str(first), "--out", str(tmp_path / "x")]
     )
     assert refused.exit_code == 2 and "seed" in refused.output and not (tmp_path / "x").exists()
+
+
+def test_after_ctrl_c_the_resume_hint_is_the_last_thing_on_the_terminal(tmp_path):
+    """Under a pseudo-terminal (the progress display redraws in place): Ctrl-C during the trials
+    leaves ``interrupted; finish the run with --resume <folder>`` as the last line, with no redraw
+    of the display after it."""
+    import pty
+    import re
+    import select
+
+    from test_scaleout import short_tiny
+
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "runners.cli", "run", str(short_tiny(tmp_path)), "--systems", "oracle", "--out", str(out)]
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: the command, on the terminal
+        os.chdir(ROOT)
+        os.execv(sys.executable, command)
+    screen, sent, deadline = b"", False, time.monotonic() + 300
+    while time.monotonic() < deadline:
+        if select.select([fd], [], [], 0.2)[0]:
+            try:
+                data = os.read(fd, 65536)
+            except OSError:  # the terminal closed: the command ended
+                break
+            if not data:
+                break
+            screen += data
+        if not sent and b"trials" in screen:  # the navigation bar is up: the run is under way
+            time.sleep(0.5)
+            os.write(fd, b"\x03")
+            sent = True
+    _, status = os.waitpid(pid, 0)
+    assert sent and os.waitstatus_to_exitcode(status) == 130, screen[-2000:]
+    hint = screen.rfind(b"interrupted; finish the run with --resume")
+    assert hint >= 0, screen[-2000:]
+    after = screen[hint:]
+    assert not re.search(rb"\x1b\[\d*[ABJK]", after), after  # no cursor moved up, no line erased after it
+    text = re.sub(rb"\x1b\[[0-9;?]*[A-Za-z]", b"", after).decode()
+    assert text.strip().splitlines() == [f"interrupted; finish the run with --resume {out}"]
+
+
+@pytest.mark.parametrize("width", [80, 120])
+def test_the_summary_fits_the_terminal_whole_numbers_and_failures_by_reason(tmp_path, monkeypatch, width):
+    from crafted_run import write_crafted_run
+    from rich.console import Console
+
+    import runners.commands.progress as progress
+    from reports.tables import COLUMNS, rows
+
+    run = write_crafted_run(tmp_path / "run")
+    summary = json.loads((run / "summary.json").read_text())
+    summary["navtopo"]["failure_reasons"] = {"collision": 1, "no_path": 2}
+    (run / "summary.json").write_text(json.dumps(summary))
+    screen = Console(width=width, record=True, file=open(os.devnull, "w"))  # noqa: SIM115 - closed with the console
+    monkeypatch.setattr(progress, "console", screen)
+    progress.print_summary(run)
+    lines = screen.export_text().splitlines()
+    assert all(len(line.rstrip()) <= width for line in lines)
+    table = "\n".join(lines)
+    assert "…" not in table  # nothing cut
+    assert "no_path 2," in table and "collision 1" in table  # most first, wrapped between reasons
+    kept, left_out = progress.fitting_columns(COLUMNS, rows(run), width)
+    assert [key for key, _, _ in kept] == [key for key, _ in COLUMNS[: len(kept)]]  # dropped from the last
+    for row in rows(run):  # every cell of a column shown is there whole
+        for key, _, _ in kept:
+            if key != "failures":
+                assert f" {row[key]} " in table, (key, row[key])
+    if left_out:
+        assert f"not shown at {width} columns: " + ", ".join(t for _, t in left_out) in " ".join(table.split())
+    assert width == 120 or len(left_out) >= 1

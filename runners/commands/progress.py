@@ -186,12 +186,39 @@ def show_finished(run: RunProgress, run_dir: RunDir) -> None:
 
 
 def print_summary(run_dir: Path) -> None:
-    """The summary table of a finished run (``reports.tables``)."""
+    """The summary table of a finished run (``reports.tables``), as wide as the terminal: columns are
+    left out from the last (``COLUMNS`` order) until it fits, never cut; a line names those left out."""
     from reports.tables import COLUMNS, rows
 
-    table = Table(title=f"summary of {run_dir}", show_lines=False)
-    for _, title in COLUMNS:
-        table.add_column(title, justify="right" if title != "system" else "left")
-    for row in rows(run_dir):
-        table.add_row(*[row[key] for key, _ in COLUMNS])
+    table_rows = rows(run_dir)
+    kept, left_out = fitting_columns(COLUMNS, table_rows, console.width)
+    table = Table(title=f"summary of {run_dir}", show_lines=False, title_justify="left")
+    for key, title, width in kept:
+        table.add_column(title, justify="left" if key in ("system", "failures") else "right", width=width)
+    for row in table_rows:
+        table.add_row(*[row[key] for key, _, _ in kept])
     console.print(table)
+    if left_out:
+        console.print(f"(not shown at {console.width} columns: {', '.join(t for _, t in left_out)}; the report has them)")
+
+
+def fitting_columns(
+    columns: list[tuple[str, str]], table_rows: list[dict[str, str]], width: int
+) -> tuple[list[tuple[str, str, int]], list[tuple[str, str]]]:
+    """The columns that fit ``width`` whole, in order from the first, each with its width (a rich
+    table adds one space of padding each side and a border between columns); and those left out.
+    A cell is never cut: a column is as wide as its widest cell, or the longest word of its title
+    (titles wrap at spaces); failures wrap between reasons ("no_path 2,")."""
+    kept: list[tuple[str, str, int]] = []
+    used = 1
+    for key, title in columns:
+        cells = [row[key] for row in table_rows]
+        if key == "failures":
+            cells = [part + "," for cell in cells for part in cell.split(", ")]
+        need = max([len(c) for c in cells] + [max(len(word) for word in title.split())])
+        if used + need + 3 > width and len(kept) >= 2:
+            break
+        kept.append((key, title, need))
+        used += need + 3
+    names = [key for key, _, _ in kept]
+    return kept, [(key, title) for key, title in columns if key not in names]
