@@ -18,6 +18,7 @@ class RunSection:
     run: Run
     key: str
     plots: list[PlotResult] = field(default_factory=list)
+    failures: list[PlotResult] = field(default_factory=list)  # a crop per failed trial (``reports.failures``)
     config_file: str = "config.yaml"
     command: str = ""
 
@@ -39,5 +40,5 @@ class Report:
     @property
     def notes(self) -> list[str]:
         """Why any plot was skipped or drawn without the GT map, one line each."""
-        lines = [f"{s.key}: {p.name}: {p.note}" for s in self.sections for p in s.plots if p.note]
+        lines = [f"{s.key}: {p.name}: {p.note}" for s in self.sections for p in s.plots + s.failures if p.note]
         return self.left_out + lines + [f"{p.name}: {p.note}" for p in self.combined + self.study if p.note]

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 from reports.contents import Report, RunSection
+from reports.failures import failure_rows
+from reports.failures import rows_html as failure_rows_html
 from reports.tables import HEADERS, NOTES, cells, paper_comparison, table_rows
 from reports.trial_table import GAP_NOTE, gap_notes
 from reports.trial_table import table_html as trial_table_html
@@ -173,6 +175,9 @@ def page(report: Report) -> str:
         parts.append("<h3>Trials</h3>")
         parts.append(trial_table_html(section.run))
         parts.append(f'<p class="note">{_inline(GAP_NOTE)}</p>')
+        parts.append("<h3>Failed trials</h3>")
+        parts.append(failure_rows_html(failure_rows(section.run)))
+        parts += [figure_html(p, base + "failures/") for p in section.failures]
         parts.append("<h3>Manifest</h3>")
         parts.append(manifest_html(section))
     parts.append("</body></html>")

@@ -26,6 +26,7 @@ from typing import Any
 import yaml
 
 from reports.contents import Report, RunSection
+from reports.failures import failure_plots
 from reports.html import UNDECODED, shown, write_html
 from reports.plots import PlotResult, groups_of, plot_efficiency, plot_planning, run_plots
 from reports.results import Run, RunFormatError
@@ -141,6 +142,7 @@ def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | No
         files.append(out / config_file)
         section = RunSection(run, key, config_file=config_file, command=reproduce_command(run, config_file))
         section.plots = run_plots(run, plots_dir / key if several else plots_dir, combined=not several)
+        section.failures = failure_plots(run, (plots_dir / key if several else plots_dir) / "failures")
         sections.append(section)
     combined: list[PlotResult] = []
     if several:

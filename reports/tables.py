@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from reports import failures
 from reports.results import MEMORY_PARTS, Run
 from reports.stats import bootstrap, bootstrap_pooled
 from reports.trial_table import gap_notes
@@ -637,9 +638,8 @@ def write_tables(runs: list[Run], out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     table = table_rows(runs)
     files = [out / "table.md", out / "table.csv", out / "table.tex"]
-    files[0].write_text(
-        markdown_document(table, paper_comparison(table) + rtabmap_notes(runs) + gap_notes(runs)), encoding="utf-8"
-    )
+    document = markdown_document(table, paper_comparison(table) + rtabmap_notes(runs) + gap_notes(runs))
+    files[0].write_text(document + "\n" + failures.markdown(runs), encoding="utf-8")
     files[1].write_text(to_csv(table), encoding="utf-8")
     files[2].write_text(latex(table), encoding="utf-8")
     return files

@@ -101,8 +101,8 @@ def test_the_report_loads_in_chromium_with_its_table_and_every_plot(tmp_path):
     seen, console = probe(made.html, tmp_path)
     assert seen["problems"] == [] and console == []
     assert seen["table_rows"] == 4  # two systems, the paper's two rows
-    pngs = [p for s in made.sections for p in s.plots if p.png is not None]
-    assert len(seen["images"]) == len(pngs) == seen["figures"] == 7
+    pngs = [p for s in made.sections for p in s.plots + s.failures if p.png is not None]
+    assert len(seen["images"]) == len(pngs) == seen["figures"] == 10  # seven plots, three failures' crops
     for alt, width, height in seen["images"]:
         assert width > 100 and height > 100, alt
 

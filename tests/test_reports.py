@@ -265,7 +265,8 @@ def test_the_report_writes_tables_plots_config_and_a_self_contained_page(crafted
         assert {f"plots/{name}.png", f"plots/{name}.svg"} <= written
     assert yaml.safe_load((out / "config.yaml").read_text()) == json.loads((crafted / "manifest.json").read_text())["config"]
     page = made.html.read_text()
-    assert page.count('<img src="data:image/png;base64,') == len([f for f in written if f.endswith(".png")]) == 7
+    # seven plots and a crop of each of the three failed trials
+    assert page.count('<img src="data:image/png;base64,') == len([f for f in written if f.endswith(".png")]) == 10
     assert '<table class="results" id="table1">' in page and "<td>5/6 (83 %) [" in page
     # what an RTAB-MAP-style system would keep of the mapping run: a note of its own, not a memory figure
     table = (out / "table.md").read_text()
@@ -291,6 +292,38 @@ def test_a_report_made_from_a_copied_folder_is_the_same_file_for_file(crafted, t
     assert set(original) == set(copied)
     differing = [name for name in original if original[name] != copied[name]]
     assert differing == []
+
+
+def test_every_failed_trial_has_a_row_and_a_crop_of_where_it_ended(crafted):
+    """The crafted run's failures: NavTopo's trial 2 (timeout) and the baseline's trials 1 and 3
+    (collisions), each a row saying which other system failed it, and a crop over the ground truth
+    and the system's own map."""
+    from reports.failures import crop_bounds, failure_rows, tail
+
+    run = Run.load(crafted)
+    rows = failure_rows(run)
+    assert [(r.system, r.trial, r.reason) for r in rows] == [
+        ("navtopo", 2, "timeout"),
+        ("metric_grid", 1, "collision"),
+        ("metric_grid", 3, "collision"),
+    ]
+    assert all(r.also_failed == [] for r in rows) and [r.succeeded for r in rows] == [["metric_grid"], ["navtopo"], ["navtopo"]]
+    assert rows[0].left_m == 0.2 and rows[0].travelled_m == pytest.approx(8.0) and rows[0].sim_time_s == 10.0
+    made = make_report([crafted])
+    table = (made.out / "table.md").read_text()
+    assert "## Failed trials" in table
+    assert "| navtopo | 2 | timeout | – | 0.20 | 8.0 | 10.0 | metric_grid ok | – |" in table
+    assert "| metric_grid | 3 | collision | – | 0.20 | 10.0 | 10.0 | navtopo ok | – |" in table
+    page = made.html.read_text()
+    assert "<h3>Failed trials</h3>" in page and page.count('<tr id="failure_') == 3
+    section = made.sections[0]
+    assert [p.name for p in section.failures] == ["failure_navtopo_2", "failure_metric_grid_1", "failure_metric_grid_3"]
+    assert all(p.png is not None and p.png.parent.name == "failures" for p in section.failures)
+    # the crop: the last 15 m of a 40 m straight run, a square round its end holding them
+    path = np.stack([np.linspace(0.0, 40.0, 401), np.zeros(401)], axis=1)
+    last = tail(path, 15.0)
+    assert last[0, 0] == pytest.approx(25.0) and last[-1, 0] == 40.0
+    assert crop_bounds(last, path[-1]) == pytest.approx((24.0, 56.0, -16.0, 16.0))
 
 
 def test_a_trial_recorded_twice_is_counted_once_and_flagged(crafted):
