@@ -212,6 +212,7 @@ class Manifest(Record):
     machine: dict[str, Any] = Field(default_factory=dict)
     created: str | None = None
     maps_from: str | None = None  # the run whose maps this one reused (--maps-from)
+    scenario_copy: str | None = None  # the scenario file as the run read it, its maps beside: relative to the run folder
 
     @property
     def setting_name(self) -> str:

@@ -18,6 +18,7 @@ folder named twice, or a copy of a run named beside it, is left out with a note 
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Callable
 from pathlib import Path, PurePath
@@ -38,23 +39,30 @@ def run_key(run: Run) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{run.scenario}-{run.setting}-s{run.seed}")
 
 
-def scenario_argument(run: Run) -> str:
-    """A bundled scenario by its name (its file is scenarios/bundled/<name>.yaml), else the file."""
+def scenario_argument(run: Run, out: Path | None = None) -> str:
+    """A bundled scenario by its name (its file is scenarios/bundled/<name>.yaml); else the run's
+    own copy of the file (``scenario_copy``), relative to ``out`` (where the command is shown), so
+    that the command works wherever the run folder goes; else (a run from before the copies) the
+    file as the run read it."""
     info = run.manifest.scenario
     if info.file is None:
         return info.name
     path = PurePath(info.file)
     if path.parent.name == "bundled" and path.stem == info.name:
         return info.name
+    copy = run.manifest.scenario_copy
+    if copy is not None and (run.root / copy).is_file():
+        return os.path.relpath(run.root / copy, out) if out is not None else str(run.root / copy)
     return info.file
 
 
-def reproduce_command(run: Run, config_file: str) -> str:
-    """The ``navtopo-bench run`` line that repeats ``run``: the same scenario, systems, seed, trial
-    count, setting and protocol, and its resolved configs (``--config``, relative to the report)."""
+def reproduce_command(run: Run, config_file: str, out: Path | None = None) -> str:
+    """The ``navtopo-bench run`` line that repeats ``run``, run from ``out`` (the report's folder):
+    the same scenario, systems, seed, trial count, setting and protocol, and its resolved configs
+    (``--config``, relative to the report)."""
     m = run.manifest
     p = m.protocol
-    parts = ["navtopo-bench", "run", _quote(scenario_argument(run)), "--systems", ",".join(m.systems), "--seed", str(m.seed)]
+    parts = ["navtopo-bench", "run", _quote(scenario_argument(run, out)), "--systems", ",".join(m.systems), "--seed", str(m.seed)]
     if m.trial_count is not None:
         parts += ["--trials", str(m.trial_count)]
     if m.setting_override:
@@ -140,7 +148,7 @@ def make_report(run_dirs: list[Path], out: Path | None = None, study: Study | No
         config_file = f"config-{key}.yaml" if several else "config.yaml"
         (out / config_file).write_text(yaml.safe_dump(run.manifest.config, sort_keys=False), encoding="utf-8")
         files.append(out / config_file)
-        section = RunSection(run, key, config_file=config_file, command=reproduce_command(run, config_file))
+        section = RunSection(run, key, config_file=config_file, command=reproduce_command(run, config_file, out))
         section.plots = run_plots(run, plots_dir / key if several else plots_dir, combined=not several)
         section.failures = failure_plots(run, (plots_dir / key if several else plots_dir) / "failures")
         sections.append(section)

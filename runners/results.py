@@ -109,6 +109,11 @@ class RunDir:
         return self.root / "manifest.json"
 
     @property
+    def scenario_dir(self) -> Path:
+        """The scenario file and its maps as the run read them (``run.keep_scenario``)."""
+        return self.root / "scenario"
+
+    @property
     def trials_path(self) -> Path:
         return self.root / "trials.jsonl"
 

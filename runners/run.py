@@ -242,6 +242,7 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
             run.root.mkdir(parents=True, exist_ok=True)
             held.enter_context(run.hold())
             manifest = new_manifest(scenario, systems, seed, setting_override, protocol, trial_count, configs)
+            manifest.scenario_copy = keep_scenario(run, ScenarioFiles.of(scenario))
             write_json(run.manifest_path, manifest)
             if options.out is None:
                 point_latest(run.root)
@@ -278,6 +279,17 @@ def run_steps(scenario: Scenario, options: RunOptions, hooks: RunHooks, slots: i
         write_summary(run, systems, mapping)
         say("done", run)
         return run
+
+
+def keep_scenario(run: RunDir, files: ScenarioFiles) -> str:
+    """The scenario file and the map files it reads, copied under ``<run>/scenario/`` as they were
+    read: the folder alone reruns, resumes and reports on another machine. Its entry's path relative
+    to the run folder (the manifest's ``scenario_copy``)."""
+    for relative, data in files.files.items():
+        path = run.scenario_dir / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+    return (run.scenario_dir / files.entry).relative_to(run.root).as_posix()
 
 
 def new_manifest(

@@ -58,8 +58,21 @@ def test_an_interrupted_oracle_run_resumes_without_losing_or_duplicating_a_trial
     assert f"pid {os.getpid()}" in refused.output and "Traceback" not in refused.output
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == listing and RunDir(out).read_trials() == before
 
+    # the folder keeps the scenario as the run read it: moved away, the resume reads the copy
+    original = tmp_path / "short_tiny.yaml"
+    copy = out / "scenario" / "short_tiny.yaml"
+    assert json.loads((out / "manifest.json").read_text())["scenario_copy"] == "scenario/short_tiny.yaml"
+    assert copy.read_bytes() == original.read_bytes()
+    original.rename(tmp_path / "moved.yaml")
+
     result = CliRunner().invoke(app, ["run", "--resume", str(out)])
     assert result.exit_code == 0, result.output
+    assert "the run's own copy is read" in result.output
+
+    from reports.report import make_report
+
+    made = make_report([out])  # the command to run it again names the copy, from the report's folder
+    assert made.sections[0].command.startswith("navtopo-bench run ../scenario/short_tiny.yaml --systems oracle")
 
     records = [json.loads(line) for line in trials.read_text().splitlines() if line.strip()]
     keys = [(r["system"], r["trial"]) for r in records]

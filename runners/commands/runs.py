@@ -105,7 +105,12 @@ def resume_run(folder: Path, request: RunRequest) -> None:
     stored = manifest.scenario
     if request.scenarios and request.scenarios[0] not in (stored.name, stored.file):
         raise Refused(f"{folder}: holds a run of {stored.name!r}, not {request.scenarios[0]!r}")
-    scenario = open_scenario(stored.file)
+    file = stored.file
+    copy = folder / manifest.scenario_copy if manifest.scenario_copy else None
+    if copy is not None and copy.is_file() and not (file and Path(file).is_file()):
+        note(f"{file}: not here; the run's own copy is read: {copy}")
+        file = str(copy)
+    scenario = open_scenario(file)
     if manifest.scenario_sha256 not in (None, scenario_fingerprint(scenario)):
         raise Refused(f"{stored.file}: changed since the run started (sha256 differs from {folder}/manifest.json)")
     if ignored := request.ignored_by_resume:
