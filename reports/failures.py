@@ -33,8 +33,9 @@ from reports.plots import (
 )
 from reports.results import Run, TrialRecord
 
-TAIL_M = 15.0  # m of trajectory a crop shows before the end
-CROP_MIN_M = 4.0  # half the side of a crop at least, m
+TAIL_M = 10.0  # m of trajectory a crop shows before the end
+CROP_MIN_M = 3.0  # half the side of a crop at least, m
+CLOSE_UP_M = 1.2  # half the side of the close-up round the end, m: a touched wall or a post shows
 
 
 @dataclass
@@ -151,8 +152,9 @@ def crop_bounds(points: NDArray[np.float64], end: NDArray[np.float64]) -> tuple[
 
 
 def plot_failure(run: Run, row: FailureRow, folder: Path) -> PlotResult:
-    """Where a failed trial ended: its last ``TAIL_M`` metres over the ground truth and over the
-    system's own map, the true shortest path dashed, the end marked."""
+    """Where a failed trial ended: a close-up of the end over the ground truth with the robot's
+    footprint there, and its last ``TAIL_M`` metres over the ground truth and over the system's own
+    map, the true shortest path dashed, the end marked."""
     result = PlotResult(row.key, f"{row.system}, trial {row.trial}: {row.reason}")
     trajectory = run.trajectory(row.system, row.trial)
     if trajectory is None or not len(trajectory):
@@ -164,14 +166,18 @@ def plot_failure(run: Run, row: FailureRow, folder: Path) -> PlotResult:
     bounds = crop_bounds(last, end)
     gt = run.ground_truth
     kind = run.map_kind(row.system)
-    panels = [("ground truth", "gt")] + ([(f"{row.system}'s map", kind)] if kind in ("graph", "grid") else [])
+    radius = gt.raster.robot_radius if gt is not None else None
+    panels = [("where it ended (ground truth)", "close"), ("its last metres (ground truth)", "gt")]
+    panels += [(f"{row.system}'s own map", kind)] if kind in ("graph", "grid") else []
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 4.4), squeeze=False)
     notes = []
     for ax, (title, what) in zip(axes[0], panels, strict=True):
-        if what == "gt" and gt is not None and gt.image is not None:
+        if what in ("gt", "close") and gt is not None and gt.image is not None:
             draw_ground_truth(ax, gt)
         elif what == "gt":
             notes.append("no GT map in this run")
+        elif what == "close":
+            pass
         else:
             if gt is not None and gt.image is not None:
                 draw_ground_truth(ax, gt, light=True)
@@ -191,8 +197,11 @@ def plot_failure(run: Run, row: FailureRow, folder: Path) -> PlotResult:
         record = next((r for r in run.trials_of(row.system) if r.trial == row.trial), None)
         if record is not None and record.goal is not None:
             ax.plot([record.goal[0]], [record.goal[1]], "*", color="gold", markeredgecolor="black", markersize=12, zorder=6)
-        ax.set_xlim(bounds[0], bounds[1])
-        ax.set_ylim(bounds[2], bounds[3])
+        near = bounds if what != "close" else (end[0] - CLOSE_UP_M, end[0] + CLOSE_UP_M, end[1] - CLOSE_UP_M, end[1] + CLOSE_UP_M)
+        if what == "close" and radius:
+            ax.add_patch(plt.Circle((end[0], end[1]), radius, fill=False, color="red", linewidth=1.2, zorder=8))
+        ax.set_xlim(near[0], near[1])
+        ax.set_ylim(near[2], near[3])
         ax.set_aspect("equal")
         ax.set_title(title, fontsize=9)
         ax.tick_params(labelsize=7)
@@ -200,8 +209,9 @@ def plot_failure(run: Run, row: FailureRow, folder: Path) -> PlotResult:
     fig.tight_layout()
     result.files = save(fig, folder, row.key)
     result.caption = (
-        f"the last {TAIL_M:g} m of the true trajectory (orange) to where it ended (X), the goal (star) and the "
-        "true shortest path (dashed), over the ground truth and over the system's own map in the scenario frame"
+        f"where it ended (X; the circle: the robot's footprint there), and the last {TAIL_M:g} m of the true "
+        "trajectory (orange), the goal (star) and the true shortest path (dashed), over the ground truth and over "
+        "the system's own map in the scenario frame"
     )
     result.note = "; ".join(notes)
     return result
