@@ -68,14 +68,14 @@ def _inline(text: str) -> str:
 
 def table_html(report: Report) -> str:
     rows = table_rows([s.run for s in report.sections])
+    runs = [s.run for s in report.sections]
     head = "".join(f"<th>{_e(title)}</th>" for title in HEADERS.values())
     body = []
     for row in rows:
         c = cells(row)
         tds = "".join(f"<td>{_e(c[key].strip('*'))}</td>" for key in HEADERS)
         body.append(f'<tr class="{"paper" if row.paper else "measured"}">{tds}</tr>')
-    runs = [s.run for s in report.sections]
-    notes = "".join(f"<li>{_inline(n)}</li>" for n in NOTES + paper_comparison(rows) + gap_notes(runs))
+    notes = "".join(f"<li>{_inline(n)}</li>" for n in NOTES + paper_comparison(rows, runs) + gap_notes(runs))
     return (
         f'<table class="results" id="table1"><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table><ul>{notes}</ul>'
     )

@@ -326,6 +326,25 @@ def test_every_failed_trial_has_a_row_and_a_crop_of_where_it_ended(crafted):
     assert crop_bounds(last, path[-1]) == pytest.approx((24.0, 56.0, -16.0, 16.0))
 
 
+def test_the_efficiency_is_judged_on_the_trials_both_systems_ran_paired(crafted):
+    """Each system's mean efficiency covers its own successes (5 vs 4 trials here); the note judges
+    the order by the per-trial SPL difference on the trials both ran, and says "differs from the
+    paper" only where its interval excludes the paper's order (the metric baseline ahead)."""
+    from reports.tables import Paired, _paired_text, paired
+
+    p = paired([Run.load(crafted)], "crafted", "precise")
+    assert p is not None and (p.trials, p.both, p.topo_only, p.metric_only, p.neither) == (6, 3, 2, 1, 0)
+    # SPL per trial: NavTopo 0.9, 0.8, 0, 0.7, 1.0, 0.6; the baseline 0.95, 0, 0.95, 0, 0.95, 0.95
+    assert p.spl_difference == pytest.approx(0.2 / 6)
+    assert p.spl_difference_ci is not None and p.spl_difference_ci[0] < 0.0 < p.spl_difference_ci[1]
+    table = (make_report([crafted]).out / "table.md").read_text()
+    assert "Paired over the 6 trials both ran: both reached 3, NavTopo alone 2, the metric baseline alone 1" in table
+    assert "does not tell them apart" in table and "Differs from the paper" not in table
+    ahead = Paired(10, 10, 0, 0, 0, 0.2, (0.1, 0.3))
+    behind = Paired(10, 10, 0, 0, 0, -0.2, (-0.3, -0.1))
+    assert "**Differs from the paper**" in _paired_text(ahead) and "same order as the paper's" in _paired_text(behind)
+
+
 def test_a_trial_recorded_twice_is_counted_once_and_flagged(crafted):
     """The crafted run's trials.jsonl holds navtopo trial 0 twice (two drivers on one folder, before
     the folder lock): the first record counts, and the report says which trial was repeated."""
@@ -432,7 +451,7 @@ def test_the_readme_section_is_the_runs_own_table_and_plots(crafted, tmp_path):
     assert done.returncode == 0, done.stderr
     text = readme.read_text(encoding="utf-8")
     assert text.startswith("# top\n\n<!-- bench:start -->") and text.endswith("<!-- bench:end -->\n\n## after\n")
-    assert "old" not in text and "| crafted | precise | navtopo | 5/6 (83 %)" in text
+    assert "\nold\n" not in text and "| crafted | precise | navtopo | 5/6 (83 %)" in text
     table = (crafted / "report" / "table.md").read_text(encoding="utf-8")
     assert table.split("\n", 1)[1].strip() in text
     for name in ("trajectories_navtopo", "planning", "map_navtopo"):
