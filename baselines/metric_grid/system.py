@@ -313,6 +313,8 @@ class MetricGrid:
                 return Command()
             self._keep_stage()
             if self.tracker.kidnapped and self._turned >= np.radians(self.config.relocalization.explore_after_deg):
+                if self.tracker.wants_turning:  # found and agreed over the motion: a turn confirms it
+                    return Command(0.0, self.config.relocalization.turn_rate)
                 return self._explore(obs)
             return Command(0.0, self.config.relocalization.turn_rate)
         if self.explorer.move is not None:  # the pose is found: the exploring move ends here

@@ -126,6 +126,16 @@ class PoseTracker:
         self.rejected_in_row = 0
 
     @property
+    def wants_turning(self) -> bool:
+        """A kidnapped start's candidate that lacks only the turning to be taken (its finds agree, over
+        enough motion): a drive toward the goal turns little; a turn in place completes it."""
+        c, config = self._candidate, self.relocalization
+        if c is None or self._localized:
+            return False
+        enough = c.agreed >= config.confirm_looks and c.moved >= config.confirm_distance
+        return enough and c.turned < np.radians(config.confirm_turn_deg)
+
+    @property
     def candidate_pose(self) -> NDArray[np.float64] | None:
         """A kidnapped start's pose (map frame) as its unconfirmed candidate puts it now; None without one."""
         if self._candidate is None or self._odom_pose is None or self._localized:
