@@ -304,19 +304,8 @@ class MetricGrid:
         if not self.tracker.localized:
             self._turned += turn
         pose = self.tracker.track(obs, points)
-        if pose is None:  # no pose found on the map yet: turn in place to see more, for a while
-            if self.tracker.search_timed_out(obs.stamp):
-                limit = self.config.relocalization
-                seconds = limit.kidnapped_timeout if self.tracker.kidnapped else limit.timeout
-                detail = f"no fit on the map {self._searched()} in {seconds:g} s"
-                self.status = NavStatus(Status.FAILED, "not_localized", FailureStage.STARTUP, detail)
-                return Command()
-            self._keep_stage()
-            if self.tracker.kidnapped and self._turned >= np.radians(self.config.relocalization.explore_after_deg):
-                if self.tracker.wants_turning:  # found and agreed over the motion: a turn confirms it
-                    return Command(0.0, self.config.relocalization.turn_rate)
-                return self._explore(obs)
-            return Command(0.0, self.config.relocalization.turn_rate)
+        if pose is None:  # no pose found on the map yet
+            return self._searching(obs)
         if self.explorer.move is not None:  # the pose is found: the exploring move ends here
             self.explorer.stop()
             self.follower.clear()
@@ -356,6 +345,20 @@ class MetricGrid:
             self.status = NavStatus(Status.REACHED, detail=detail)
             return Command()
         return command
+
+    def _searching(self, obs: Observation) -> Command:
+        """No pose found on the map yet: turn in place to see more, for a while; a kidnapped start,
+        past its first full turn, moves (``_explore``) or turns to confirm its candidate."""
+        limit = self.config.relocalization
+        if self.tracker.search_timed_out(obs.stamp):
+            seconds = limit.kidnapped_timeout if self.tracker.kidnapped else limit.timeout
+            detail = f"no fit on the map {self._searched()} in {seconds:g} s"
+            self.status = NavStatus(Status.FAILED, "not_localized", FailureStage.STARTUP, detail)
+            return Command()
+        self._keep_stage()
+        if self.tracker.kidnapped and self._turned >= np.radians(limit.explore_after_deg) and not self.tracker.wants_turning:
+            return self._explore(obs)
+        return Command(0.0, limit.turn_rate)  # (a candidate found and agreed over the motion: a turn confirms it)
 
     def _explore(self, obs: Observation) -> Command:
         """A kidnapped start not confirmed by turning in place: moves for new views (``navkit.explore``,
