@@ -410,6 +410,7 @@ class Group:
     label: str  # tick label (system, and for several runs the scenario and setting)
     system: str
     records: list[TrialRecord]
+    scene: str = ""  # "<scenario> · <setting>": groups of one scene share their trials
 
 
 def groups_of(runs: list[Run]) -> list[Group]:
@@ -420,7 +421,12 @@ def groups_of(runs: list[Run]) -> list[Group]:
             keyed.setdefault((run.scenario, run.setting, system), []).extend(run.trials_of(system))
     several = len({(k[0], k[1]) for k in keyed}) > 1
     return [
-        Group(label=f"{system}\n{scenario} · {setting}" if several else system, system=system, records=records)
+        Group(
+            label=f"{system}\n{scenario} · {setting}" if several else system,
+            system=system,
+            records=records,
+            scene=f"{scenario} · {setting}",
+        )
         for (scenario, setting, system), records in keyed.items()
     ]
 
@@ -472,38 +478,47 @@ def plot_efficiency(groups: list[Group], folder: Path, name: str = "efficiency")
         result.note = "no trials recorded"
         return result
     systems = list(dict.fromkeys(g.system for g in groups))
-    trials = sorted({r.trial for g in groups for r in g.records})
-    fig, ax = plt.subplots(figsize=(max(7.0, 0.35 * len(trials) * max(1, len(groups) / 3) + 3), 4.2))
-    width = 0.8 / max(len(groups), 1)
+    scenes = list(dict.fromkeys(g.scene for g in groups))  # a panel each: trial k of two scenes are unrelated
+    most = max(len({r.trial for g in groups if g.scene == scene for r in g.records}) for scene in scenes)
+    width_in = max(7.0, 0.35 * most * max(1, len(systems) / 3) + 3)
+    fig, axes = plt.subplots(len(scenes), 1, figsize=(width_in, 3.4 * len(scenes) + 0.8), squeeze=False)
     markers = ["o", "s", "^", "D", "v", "P", "h"]
-    for k, g in enumerate(groups):
-        c = colour(g.system, systems)
-        offset = (k - (len(groups) - 1) / 2) * width
-        ok = [r for r in g.records if r.success and r.efficiency is not None]
-        bad = [r for r in g.records if not r.success]
-        mean = f"{np.mean([r.efficiency for r in ok]):.3f}" if ok else "–"
-        ax.scatter(
-            [r.trial + offset for r in ok],
-            [r.efficiency or 0.0 for r in ok],  # none is None (ok)
-            color=c,
-            marker=markers[k % len(markers)],
-            s=22,
-            edgecolors="black",
-            linewidths=0.3,
-            zorder=3,
-            label=f"{g.label.replace(chr(10), ' · ')} (mean {mean}, {len(ok)}/{len(g.records)} ok)",
-        )
-        if bad:
-            ax.scatter([r.trial + offset for r in bad], [0.0] * len(bad), color=c, marker="x", s=30, zorder=3)
-    ax.scatter([], [], color="gray", marker="x", label="failed trial (at 0)")
-    ax.set_xticks(trials)
-    ax.set_xlabel("trial")
-    ax.set_ylabel("efficiency = shortest / travelled")
-    ax.set_ylim(-0.05, 1.05)
-    ax.grid(alpha=0.25)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=7, frameon=False)
+    for ax, scene in zip(axes[:, 0], scenes, strict=True):
+        members = [g for g in groups if g.scene == scene]
+        trials = sorted({r.trial for g in members for r in g.records})
+        width = 0.8 / max(len(members), 1)
+        for k, g in enumerate(members):
+            c = colour(g.system, systems)
+            offset = (k - (len(members) - 1) / 2) * width
+            ok = [r for r in g.records if r.success and r.efficiency is not None]
+            bad = [r for r in g.records if not r.success]
+            mean = f"{np.mean([r.efficiency for r in ok]):.3f}" if ok else "–"
+            ax.scatter(
+                [r.trial + offset for r in ok],
+                [r.efficiency or 0.0 for r in ok],  # none is None (ok)
+                color=c,
+                marker=markers[systems.index(g.system) % len(markers)],
+                s=22,
+                edgecolors="black",
+                linewidths=0.3,
+                zorder=3,
+                label=f"{g.system} (mean {mean}, {len(ok)}/{len(g.records)} ok)",
+            )
+            if bad:
+                ax.scatter([r.trial + offset for r in bad], [0.0] * len(bad), color=c, marker="x", s=30, zorder=3)
+        ax.scatter([], [], color="gray", marker="x", label="failed trial (at 0)")
+        ax.set_xticks(trials)
+        ax.set_xlabel("trial" if len(scenes) == 1 else f"trial of {scene}")
+        ax.set_ylabel("efficiency = shortest / travelled")
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.25)
+        if len(scenes) > 1:
+            ax.set_title(scene, fontsize=9)
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize=7, frameon=False)
     fig.tight_layout()
-    result.caption = "each trial's efficiency (successful trials); failed trials marked × at 0"
+    result.caption = "each trial's efficiency (successful trials); failed trials marked × at 0" + (
+        "; a panel per scene and setting" if len(scenes) > 1 else ""
+    )
     result.files = save(fig, folder, name)
     return result
 

@@ -40,6 +40,7 @@ class Row:
     setting: str
     system: str
     source: str = "measured"
+    pooled: bool = False  # every scene of the table in this setting, pooled (a report of several scenes)
     seeds: list[int] = field(default_factory=list)
     trials: int = 0
     successes: int = 0
@@ -113,12 +114,29 @@ def _max(values: list[int | None]) -> int | None:
 
 
 def measured_rows(runs: list[Run]) -> list[Row]:
-    """The measured rows, in the order scenarios, settings and systems first appear in ``runs``."""
+    """The measured rows, in the order scenarios, settings and systems first appear in ``runs``; where
+    a setting holds several scenes, then a pooled row per system over all of them (``pooled_name``)."""
     groups: dict[tuple[str, str, str], list[Run]] = {}
     for run in runs:
         for system in run.systems:
             groups.setdefault((run.scenario, run.setting, system), []).append(run)
-    return [_row(scenario, setting, system, members) for (scenario, setting, system), members in groups.items()]
+    rows = [_row(scenario, setting, system, members) for (scenario, setting, system), members in groups.items()]
+    pools: dict[tuple[str, str], list[Run]] = {}
+    for run in runs:
+        for system in run.systems:
+            pools.setdefault((run.setting, system), []).append(run)
+    for (setting, system), members in pools.items():
+        scenes = dict.fromkeys(run.scenario for run in members)
+        if len(scenes) > 1:
+            row = _row(pooled_name(len(scenes)), setting, system, members)
+            row.pooled = True
+            rows.append(row)
+    return rows
+
+
+def pooled_name(scenes: int) -> str:
+    """The scenario cell of a pooled row."""
+    return f"all {scenes} scenes"
 
 
 def _row(scenario: str, setting: str, system: str, runs: list[Run]) -> Row:
@@ -544,12 +562,12 @@ class Paired:
     spl_difference_ci: Interval = None
 
 
-def paired(runs: list[Run], scenario: str, setting: str) -> Paired | None:
-    """``Paired`` over the trials of ``scenario`` in ``setting`` that both NavTopo and the metric
-    baseline ran (a trial of a run counted once); None if there is none."""
+def paired(runs: list[Run], scenario: str | None, setting: str) -> Paired | None:
+    """``Paired`` over the trials of ``scenario`` (None: every scene) in ``setting`` that both NavTopo
+    and the metric baseline ran (a trial of a run counted once); None if there is none."""
     pairs = []
     for run in runs:
-        if run.scenario != scenario or run.setting != setting:
+        if (scenario is not None and run.scenario != scenario) or run.setting != setting:
             continue
         topo = {r.trial: r for r in run.trials_of("navtopo")}
         metric = {r.trial: r for r in run.trials_of("metric_grid")}
@@ -610,7 +628,8 @@ def paper_comparison(rows: list[Row], runs: list[Run] | None = None) -> list[str
                 f"({b / a:.1f}×); the paper: 6 vs 830 ms (138×). " + _agreement(a < b)
             )
         a, b = topo.efficiency, metric.efficiency
-        pair = paired(runs, scenario, setting) if runs is not None else None
+        pooled = topo.pooled and metric.pooled
+        pair = paired(runs, None if pooled else scenario, setting) if runs is not None else None
         if a is not None and b is not None:
             judged = _paired_text(pair) if pair is not None else _agreement(a < b)
             notes.append(

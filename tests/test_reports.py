@@ -180,11 +180,13 @@ def test_runs_of_one_scenario_and_setting_pool_their_trials(tmp_path):
     b = Run.load(write_crafted_run(tmp_path / "b", seed=8, memory_scale=2.0))
     other = Run.load(write_crafted_run(tmp_path / "c", seed=7, scenario="other"))
     rows = [r for r in table_rows([a, b, other]) if not r.paper]
-    assert [(r.scenario, r.system) for r in rows] == [
-        ("crafted", "navtopo"),
-        ("crafted", "metric_grid"),
-        ("other", "navtopo"),
-        ("other", "metric_grid"),
+    assert [(r.scenario, r.system, r.pooled) for r in rows] == [
+        ("crafted", "navtopo", False),
+        ("crafted", "metric_grid", False),
+        ("other", "navtopo", False),
+        ("other", "metric_grid", False),
+        ("all 2 scenes", "navtopo", True),
+        ("all 2 scenes", "metric_grid", True),
     ]
     topo = rows[0]
     assert topo.seeds == [7, 8] and (topo.trials, topo.successes, topo.planning_calls) == (12, 10, 40)
@@ -376,7 +378,20 @@ def test_several_runs_make_one_combined_report(tmp_path):
         ("crafted", "metric_grid", "12"),
         ("other", "navtopo", "6"),
         ("other", "metric_grid", "6"),
+        ("all 2 scenes", "navtopo", "18"),  # pooled: every scene of the setting, each system
+        ("all 2 scenes", "metric_grid", "18"),
     ]
+    pooled = {r["system"]: r for r in rows if r["scenario"] == "all 2 scenes"}
+    assert pooled["navtopo"]["successes"] == "15" and pooled["metric_grid"]["successes"] == "12"
+    table = (tmp_path / "combined" / "table.md").read_text()
+    assert "all 2 scenes (precise), efficiency" in table and "Paired over the 18 trials both ran" in table
+    # efficiency per trial: a panel per scene, trial k of two scenes being unrelated
+    from reports.plots import groups_of, plot_efficiency
+
+    runs = [Run.load(p) for p in (a, b, c)]
+    assert [g.scene for g in groups_of(runs)] == ["crafted · precise"] * 2 + ["other · precise"] * 2
+    plot = plot_efficiency(groups_of(runs), tmp_path / "panels")
+    assert plot.caption.endswith("a panel per scene and setting")
     page = made.html.read_text()
     assert page.count("navtopo-bench run ") == 3 and "--seed 8" in page and "--config config-other-precise-s7.yaml" in page
 
