@@ -24,6 +24,7 @@ from reports.trial_table import table_html as trial_table_html
 
 if TYPE_CHECKING:
     from reports.plots import PlotResult
+    from reports.records import Manifest
 
 CSP = "default-src 'none'; img-src data:; style-src 'unsafe-inline'"
 STYLE = """
@@ -98,6 +99,42 @@ def _json(value: Any) -> str:
     return json.dumps(value, sort_keys=True, ensure_ascii=False)
 
 
+SETTINGS = {
+    "precise": "exact wheel odometry, no lidar range noise",
+    "noisy": "wheel odometry with 2 % of the distance and 0.5°/m of drift, lidar range noise 1 cm",
+}
+
+
+def setting_meaning(m: Manifest) -> str:
+    """What the run's setting is, in words: a named one, or the scenario file's own noise ("custom")."""
+    name = (m.setting or "").split(",")[0]
+    if name in SETTINGS:
+        return SETTINGS[name]
+    return f"the scenario file's own: odometry noise {_json(m.odometry_noise)}, lidar range noise {m.range_noise or 0:g} m"
+
+
+def odometry_sources(config: dict[str, Any]) -> str:
+    """Per system, the odometry its config says it uses (``odometry.source``: wheel, or lidar
+    odometry seeded by the wheels); NavTopo tracks on the wheels' and keeps lidar odometry's for
+    map-frame hints (``lidar_hints``)."""
+    parts = []
+    for system, cfg in config.items():
+        if not isinstance(cfg, dict):
+            continue
+        odometry = cfg.get("odometry") if isinstance(cfg.get("odometry"), dict) else None
+        if odometry is not None and odometry.get("source"):
+            seeded = " seeded by the wheels" if odometry.get("source") == "lidar" and odometry.get("seed_with_wheel") else ""
+            parts.append(f"{system}: {odometry['source']}{seeded}")
+        elif "lidar_hints" in cfg:
+            hints = " (lidar odometry for map-frame hints)" if cfg.get("lidar_hints") else ""
+            parts.append(f"{system}: wheel{hints}")
+        elif system == "oracle":
+            parts.append(f"{system}: the true pose (the reference)")
+        else:
+            parts.append(f"{system}: the simulator's odometry")
+    return "; ".join(parts)
+
+
 def manifest_html(section: RunSection) -> str:
     m = section.run.manifest
     s = m.scenario
@@ -124,7 +161,8 @@ def manifest_html(section: RunSection) -> str:
         ("systems", ", ".join(m.systems)),
         ("seed", m.seed),
         ("trials run", "–" if m.trial_count is None else m.trial_count),
-        ("setting", section.run.setting),
+        ("setting", f"{section.run.setting}: {setting_meaning(m)}"),
+        ("odometry each system uses", odometry_sources(m.config) or "–"),
         ("odometry noise", _json(m.odometry_noise)),
         ("range noise (m)", "–" if m.range_noise is None else m.range_noise),
         ("protocol", _json(m.protocol.model_dump())),

@@ -347,6 +347,22 @@ def test_the_efficiency_is_judged_on_the_trials_both_systems_ran_paired(crafted)
     assert "**Differs from the paper**" in _paired_text(ahead) and "same order as the paper's" in _paired_text(behind)
 
 
+def test_the_page_says_what_the_setting_is_and_which_odometry_each_system_uses(crafted):
+    from reports.html import odometry_sources
+
+    page = make_report([crafted]).html.read_text()
+    assert "<dt>setting</dt><dd>precise: exact wheel odometry, no lidar range noise</dd>" in page
+    config = {
+        "navtopo": {"lidar_hints": True},
+        "metric_grid": {"odometry": {"source": "lidar", "seed_with_wheel": True}},
+        "oracle": {"follower": {}},
+    }
+    assert odometry_sources(config) == (
+        "navtopo: wheel (lidar odometry for map-frame hints); metric_grid: lidar seeded by the wheels; "
+        "oracle: the true pose (the reference)"
+    )
+
+
 def test_a_trial_recorded_twice_is_counted_once_and_flagged(crafted):
     """The crafted run's trials.jsonl holds navtopo trial 0 twice (two drivers on one folder, before
     the folder lock): the first record counts, and the report says which trial was repeated."""
