@@ -328,6 +328,37 @@ def test_every_failed_trial_has_a_row_and_a_crop_of_where_it_ended(crafted):
     assert crop_bounds(last, path[-1]) == pytest.approx((24.0, 56.0, -16.0, 16.0))
 
 
+def test_a_reader_of_the_page_alone_can_say_where_and_in_which_stage_each_trial_failed(tmp_path):
+    """Failures of every reason a trial can end with, each with its stage and the system's one line:
+    the page has a row for each, saying the stage, the detail, how far from the goal it ended and
+    whether the other system failed the same trial."""
+    from runners.metrics import REASON_STAGES
+
+    run = write_crafted_run(tmp_path / "run")
+    path = run / "trials.jsonl"
+    records = [json.loads(line) for line in path.read_text().splitlines()[:-1]]  # the torn line dropped
+    reasons = sorted(REASON_STAGES)  # every reason with a stage: not_localized, no_path, ..., out_of_memory
+    rewritten = []
+    for k, reason in enumerate(reasons):
+        for system in ("navtopo", "metric_grid"):
+            record = dict(next(r for r in records if r["system"] == system), trial=k, success=False, reason=reason)
+            record.update(failure_stage=str(REASON_STAGES[reason]), detail=f"{system} says why, {reason}", final_distance_m=1.0 + k)
+            if system == "metric_grid" and k % 2:  # the other system reached the goal of every other trial
+                record.update(success=True, reason="", failure_stage=None, detail=None, final_distance_m=0.1)
+            rewritten.append(record)
+    path.write_text("".join(json.dumps(r) + "\n" for r in rewritten))
+    page = make_report([run]).html.read_text()
+    rows = re.findall(r'<tr id="failure_(\w+?)_(\d+)">(.*?)</tr>', page)
+    assert len(rows) == len(reasons) + (len(reasons) + 1) // 2
+    for system, trial, cells_html in rows:
+        reason = reasons[int(trial)]
+        cells = re.findall(r"<td>(.*?)</td>", cells_html)
+        assert cells[:5] == [system, trial, reason, str(REASON_STAGES[reason]), f"{1.0 + int(trial):.2f}"]
+        other = "metric_grid" if system == "navtopo" else "navtopo"
+        assert cells[7] == (f"{other} ok" if int(trial) % 2 else f"{other} failed")
+        assert cells[8] == f"{system} says why, {reason}"
+
+
 def test_the_efficiency_is_judged_on_the_trials_both_systems_ran_paired(crafted):
     """Each system's mean efficiency covers its own successes (5 vs 4 trials here); the note judges
     the order by the per-trial SPL difference on the trials both ran, and says "differs from the
