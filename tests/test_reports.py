@@ -342,7 +342,8 @@ def test_a_reader_of_the_page_alone_can_say_where_and_in_which_stage_each_trial_
     for k, reason in enumerate(reasons):
         for system in ("navtopo", "metric_grid"):
             record = dict(next(r for r in records if r["system"] == system), trial=k, success=False, reason=reason)
-            record.update(failure_stage=str(REASON_STAGES[reason]), detail=f"{system} says why, {reason}", final_distance_m=1.0 + k)
+            stage, detail = str(REASON_STAGES[reason]), f"{system} says why, {reason}"
+            record.update(failure_stage=stage, detail=detail, final_distance_m=1.0 + k)
             if system == "metric_grid" and k % 2:  # the other system reached the goal of every other trial
                 record.update(success=True, reason="", failure_stage=None, detail=None, final_distance_m=0.1)
             rewritten.append(record)
