@@ -7,8 +7,6 @@ baseline's kidnapped start, while its global searches have not confirmed a pose.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -19,11 +17,8 @@ from navkit.scan import obstacle_points
 from navkit.scan_grid import GridConfig, ScanGrid
 from navkit.types import Command, Observation
 
-Toward = Callable[[], "NDArray[np.float64] | None"]  # a point (robot frame) a move should head for, if any
-
 ROOMY_M = 0.3  # m beyond the robot's radius free all round: an exploring move among look-alikes may begin
 FAR_LOOK_M = 10.0  # m: how far along each direction an exploring move weighs the new ground the scan shows
-TOWARD_DETOUR = 1.5  # a move toward a point through space the scan did not see: at most this times the straight line
 
 
 class Explorer:
@@ -92,11 +87,9 @@ class Explorer:
         self.until = odometer + self.explore_distance
         self._progress_mark = (stamp, odometer)
 
-    def step(self, obs: Observation, counters: dict[str, int], toward: Toward | None = None) -> Command:
+    def step(self, obs: Observation, counters: dict[str, int]) -> Command:
         """Drive toward the most open direction of the robot's own scan (``explore_moves`` and
-        ``explore_blocked`` counted in ``counters``), or, where ``toward`` gives a point (robot frame;
-        asked at each new move) and the scan shows a way there, toward it (``explore_toward``: the
-        goal, as an unconfirmed pose puts it). The way ahead is checked against every new scan:
+        ``explore_blocked`` counted in ``counters``). The way ahead is checked against every new scan:
         a path planned through cells the first scan did not see (a wall seen edge-on from a doorway)
         is given up at the first scan that shows a wall on it."""
         if self.move is not None and len(self.scan_on_path(obs, between(self.move[0], obs.odom))):
@@ -104,12 +97,7 @@ class Explorer:
             self.follower.clear()
             counters["explore_blocked"] += 1
         if self.move is None or self.follower.reached or not self.follower.has_path:
-            point = None if toward is None else toward()
-            path = None if point is None else self._path_to(obs, point)
-            if path is not None:
-                counters["explore_toward"] = counters.get("explore_toward", 0) + 1
-            else:
-                path = self._open_space_path(obs)
+            path = self._open_space_path(obs)
             if path is None:
                 return Command(0.0, self.follower.config.max_angular / 2)
             self.move = (np.asarray(obs.odom, dtype=np.float64).copy(), path)
@@ -130,19 +118,6 @@ class Explorer:
         reach = float(np.hypot(*(ahead - pose[:2]).T).max()) + self.robot_radius
         xy = transform_points(pose, points[np.hypot(points[:, 0], points[:, 1]) <= reach])
         return xy[distance_to_polyline(xy, ahead) < self.robot_radius]
-
-    def _path_to(self, obs: Observation, point: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """A path in the robot's own scan to ``point`` (robot frame), or to the farthest point toward
-        it the scan shows free (its cells), if the robot gets at least a metre nearer: None else."""
-        scan = ScanGrid.of(obs.points, self.grid_config, *self.radii)
-        distance = float(np.hypot(point[0], point[1]))
-        for scale in (1.0, 0.75, 0.5, 0.25):
-            if distance * scale < 1.0:
-                break
-            planned = scan.plan_seen_first(np.asarray(point, dtype=np.float64) * scale, TOWARD_DETOUR)
-            if planned is not None:
-                return planned.points
-        return None
 
     def _open_space_path(self, obs: Observation) -> NDArray[np.float64] | None:
         """A path in the robot's own scan to new ground: of the free points ``explore_distance`` (or

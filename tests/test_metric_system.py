@@ -222,8 +222,8 @@ def test_a_start_far_from_the_given_pose_is_found_by_the_global_search(tiny, sim
 
 def test_a_kidnapped_start_is_found_on_the_whole_map_and_confirmed_over_motion(tiny, sim, mapped, context):
     """The protocol's ``none``: no pose given. The whole map is searched as the robot turns in place,
-    then as it moves toward the goal as its unconfirmed candidate puts it; the pose is taken only
-    after three finds agree over 90° of turning and 3 m of motion, and it is the truth's."""
+    then as it explores; the pose is taken only after three finds agree over 90° of turning and 3 m
+    of motion, and it is the truth's."""
     _, directory, _ = mapped
     system = MetricGrid.load(directory, MetricGridConfig(), context)
     trial = tiny.trials[1]
@@ -249,10 +249,6 @@ def test_a_kidnapped_start_is_found_on_the_whole_map_and_confirmed_over_motion(t
     assert se2.distance(estimate, truth) < 0.1 and abs(se2.wrap_angle(estimate[2] - truth[2])) < np.deg2rad(1.0)
     first = system.stats()["localizations"][0]
     assert first["given_pose"] is False and first["seconds"] > 0
-    # its moves went toward the goal as the unconfirmed candidate put it (the map's path from there)
-    assert system.counters["explore_toward"] >= 1 and system.counters["explore_toward"] == system.counters["explore_moves"]
-    before, after = (float(np.hypot(*(xy - trial.goal[:2]))) for xy in (trial.start[:2], sim.true_pose[:2]))
-    assert after <= before - 2.0, (before, after)  # 12.3 m from the goal at the start, 9.6 m once found
 
 
 def test_without_registration_the_given_error_stays(tiny, sim, mapped, context):

@@ -51,7 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 from navkit import grid_search
 from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
-from navkit.geometry import arc_lengths, inverse, point_at_arc, transform_points
+from navkit.geometry import transform_points
 from navkit.odometer import Odometer
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.passages import PassageCheck, returns_near
@@ -127,7 +127,7 @@ class MetricGrid:
         )
         self._odometer = Odometer()  # of this trial (a kidnapped start's exploring moves run on it)
         self._turned = 0.0  # rad turned this trial while no pose was found
-        self.explore_counters = {"explore_moves": 0, "explore_blocked": 0, "explore_toward": 0}
+        self.explore_counters = {"explore_moves": 0, "explore_blocked": 0}
         self.passages = PassageCheck(cfg.planning.passages, self.robot_radius)
         self.progress = ProgressCheck(cfg.planning.progress_distance, cfg.planning.progress_time)
         self._recoveries = 0  # this goal's
@@ -361,28 +361,16 @@ class MetricGrid:
         return Command(0.0, limit.turn_rate)  # (a candidate found and agreed over the motion: a turn confirms it)
 
     def _explore(self, obs: Observation) -> Command:
-        """A kidnapped start not confirmed by turning in place: moves for new views (``navkit.explore``,
-        as NavTopo's start-up), each ``explore_distance`` long: toward the goal as the unconfirmed
-        candidate puts it, where the scan shows a way (as NavTopo drives by its best hypothesis; a
-        wrong candidate costs a move, and the next finds replace it), else toward open space."""
+        """A kidnapped start not confirmed by turning in place: moves toward open space for new views
+        (``navkit.explore``, as NavTopo's start-up), each ``explore_distance`` long. (Moving toward the
+        goal by the unconfirmed candidate instead was tried: on the symmetric loop_office_door the
+        views along the way to the goal kept dropping the right candidate as ambiguous, 4 of 8 trials
+        not localized; BENCHMARKS.md, session 22.)"""
         explorer = self.explorer
         explorer.record(obs.odom)
         if not explorer.under_way(self._odometer.metres):
             explorer.begin(obs.stamp, self._odometer.metres)
-        return explorer.step(obs, self.explore_counters, self._toward_goal)
-
-    def _toward_goal(self) -> NDArray[np.float64] | None:
-        """Where the map's path to the goal from the candidate's pose is ``explore_distance`` along (robot
-        frame), or None (no candidate, or no path)."""
-        pose = self.tracker.candidate_pose
-        if pose is None or self._goal is None:
-            return None
-        path = self.plan(pose[:2], self._goal)
-        if path is None or len(path) < 2:
-            return None
-        arcs = arc_lengths(path)
-        target = point_at_arc(path, arcs, min(self.explorer.explore_distance, float(arcs[-1])))
-        return transform_points(inverse(pose), target[None])[0]
+        return explorer.step(obs, self.explore_counters)
 
     def _check_passage(self, obs: Observation, pose: NDArray) -> bool:
         """The narrow passage of the path against the scan's returns (``navkit.passages``): moved to

@@ -103,7 +103,6 @@ class PoseTracker:
         self.kidnapped = False  # no initial pose given this trial: the pose is searched for everywhere
         self._candidate: Candidate | None = None  # a kidnapped start's global finds, confirmed over motion
         self._last_look: NDArray[np.float64] | None = None  # odometry at the last global search (kidnapped)
-        self._odom_pose: NDArray[np.float64] | None = None  # the lidar odometry's pose at the last scan
         self.localize_started: float | None = None
         self.localized_at: float | None = None  # the stamp the pose was found on the map ...
         self.localized_pose: NDArray[np.float64] | None = None  # ... and the pose found then (map frame)
@@ -128,19 +127,12 @@ class PoseTracker:
     @property
     def wants_turning(self) -> bool:
         """A kidnapped start's candidate that lacks only the turning to be taken (its finds agree, over
-        enough motion): a drive toward the goal turns little; a turn in place completes it."""
+        enough motion): a drive straight on turns little; a turn in place completes it."""
         c, config = self._candidate, self.relocalization
         if c is None or self._localized:
             return False
         enough = c.agreed >= config.confirm_looks and c.moved >= config.confirm_distance
         return enough and c.turned < np.radians(config.confirm_turn_deg)
-
-    @property
-    def candidate_pose(self) -> NDArray[np.float64] | None:
-        """A kidnapped start's pose (map frame) as its unconfirmed candidate puts it now; None without one."""
-        if self._candidate is None or self._odom_pose is None or self._localized:
-            return None
-        return se2.compose(self._candidate.map_from_odom, self._odom_pose)
 
     @property
     def localized(self) -> bool:
@@ -172,7 +164,6 @@ class PoseTracker:
         if self._odometry is None:
             self._odometry = LidarOdometry(self.odometry_config)
         odom_pose = self._odometry.update(obs.points, obs.odom)
-        self._odom_pose = odom_pose
         loc = self.localization
         near = points[np.hypot(points[:, 0], points[:, 1]) <= loc.max_range]
         if self.kidnapped and not self._localized:
