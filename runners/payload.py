@@ -46,13 +46,17 @@ class ScenarioFiles:
         files = {p.relative_to(base).as_posix(): p.read_bytes() for p in paths}
         return cls(entry=paths[0].relative_to(base).as_posix(), files=files)
 
-    def load(self, folder: Path) -> Scenario:
-        """Write the files under ``folder`` and load the scenario from there."""
+    def write(self, folder: Path) -> Path:
+        """Write the files under ``folder``; the scenario file's path there."""
         for relative, data in self.files.items():
             path = folder / relative
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(data)
-        return load_scenario(folder / self.entry)
+        return folder / self.entry
+
+    def load(self, folder: Path) -> Scenario:
+        """Write the files under ``folder`` and load the scenario from there."""
+        return load_scenario(self.write(folder))
 
 
 def pack_dir(folder: Path) -> bytes:

@@ -285,11 +285,7 @@ def keep_scenario(run: RunDir, files: ScenarioFiles) -> str:
     """The scenario file and the map files it reads, copied under ``<run>/scenario/`` as they were
     read: the folder alone reruns, resumes and reports on another machine. Its entry's path relative
     to the run folder (the manifest's ``scenario_copy``)."""
-    for relative, data in files.files.items():
-        path = run.scenario_dir / relative
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data)
-    return (run.scenario_dir / files.entry).relative_to(run.root).as_posix()
+    return files.write(run.scenario_dir).relative_to(run.root).as_posix()
 
 
 def new_manifest(
