@@ -22,6 +22,10 @@ A SLAM-like map with more speckle and no laser fans:
     .venv/bin/python benchmarks/generate_scene.py slam-ring --seed 301 -o /tmp/s301/ring.yaml \
         --artefacts speckle_per_100m2=6,fans_per_100m=0
 
+A world that changes after mapping (two corridor stretches shut; 3 in 4 trials meet one):
+
+    .venv/bin/python benchmarks/generate_scene.py ring --seed 431 --shut 2 --trials 12 -o /tmp/shut431.yaml
+
 Same arguments, same files (byte for byte).
 """
 
@@ -37,9 +41,11 @@ from _tuning import BENCHMARK_SEEDS
 
 from navkit.errors import BenchError
 from scenarios import aliased, generators, lattice
+from scenarios.changes import with_shut_stretches
 from scenarios.schema import parse_spec
 from scenarios.slam_like import Artefacts, write_slam_scenario
 
+SHUT_KINDS = ["ring", "lattice", "mirror"]
 KINDS = ["tree", "ring", "lattice", "slam-ring", "slam-tree", "slam-lattice", "aliased-wing", "aliased-ring", "mirror"]
 
 
@@ -70,6 +76,13 @@ def arguments() -> argparse.ArgumentParser:
         help="slam-*: KEY=VALUE,... of scenarios.slam_like.Artefacts (e.g. speckle_per_100m2=6), or 'none'",
     )
     parser.add_argument("--route-factor", type=float, default=None, help="auto route of at least this x the corridor length")
+    parser.add_argument(
+        "--shut",
+        type=int,
+        default=0,
+        help="ring, lattice, mirror: corridor stretches shut after mapping (world.changes, a fire door closed); the "
+        "trials are then explicit, 3 in 4 of them through a shut stretch (scenarios.changes)",
+    )
     parser.add_argument("--trials", type=int, default=20)
     parser.add_argument("-o", "--output", type=Path, required=True)
     return parser
@@ -150,6 +163,10 @@ def main() -> int:
             raise Refused("--length must be positive")
         amounts = artefacts(args.artefacts) if args.kind.startswith("slam-") else None
         spec = shape_spec(args, args.kind)
+        if args.shut:
+            if args.kind not in SHUT_KINDS:
+                raise Refused(f"--shut: {args.kind} has no loop round a shut stretch; one of {', '.join(SHUT_KINDS)}")
+            spec = with_shut_stretches(spec, args.output, args.shut, args.seed, args.trials)
         if amounts is not None:
             made = write_slam_scenario(spec, args.output, args.seed, amounts)  # validated before it writes
             print(f"{args.output}: {made.record.summary()}")

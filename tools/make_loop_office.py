@@ -19,14 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from shapely.geometry import LineString
 
+from scenarios.changes import change_trials, stretch_candidates
 from scenarios.generators import ring_building
-from scenarios.route_space import route_space
-from scenarios.scenario import build_scenario
-from scenarios.schema import parse_spec
-from scenarios.trials import make_trial
-from scenarios.world import rectangle
 
 SEED = 12
 LENGTH_M = 150.0
@@ -61,21 +56,10 @@ def loop_office() -> dict:
 
 def closing_box(spec: dict) -> dict:
     """A box across the cross corridor half-way along it, clear of the doors that open onto it."""
-    cross = spec["world"]["corridors"][1]
-    (x, y0), (_, y1) = cross["points"]
-    width = cross["width"]
-    doors = [r for r in spec["world"]["rooms"] if abs(min(r["size"]) - 0.3) < 1e-6]
-    near = [d["center"][1] for d in doors if abs(d["center"][0] - x) < width / 2 + 0.5]
-    for offset in np.linspace(0.0, (y1 - y0) / 3, 41):
-        for y in ((y0 + y1) / 2 + offset, (y0 + y1) / 2 - offset):
-            if all(abs(y - other) > 1.6 for other in near):
-                return {
-                    "center": [round(x, 3), round(float(y), 3)],
-                    "size": [round(width + 0.3, 3), 0.3],
-                    "height": 2.1,
-                    "yaw": 0.0,
-                }
-    raise SystemExit("no stretch of the cross corridor clear of doors")
+    candidates = stretch_candidates(spec, corridor=1, leg=0)
+    if not candidates:
+        raise SystemExit("no stretch of the cross corridor clear of doors")
+    return candidates[0]
 
 
 def door_trials(spec: dict, change: dict, crossing: int = 16, others: int = 4) -> list[dict]:
@@ -83,37 +67,8 @@ def door_trials(spec: dict, change: dict, crossing: int = 16, others: int = 4) -
     through the change (the way round at least ``DETOUR_M`` longer), then ``others`` whose does
     not; each with a way round (at most 2.5 times as long) once the change stands."""
     origin = BUNDLED / "loop_office_door.yaml"
-    scenario = build_scenario(parse_spec({**spec, "trials": []}, origin), origin, with_trials=False)
-    world, nav = scenario.world, scenario.navigation_world
-    radius = spec["robot"]["radius"]
-    space, nav_space = route_space(world, radius), route_space(nav, radius)
-    ends = np.argwhere(space.roomy & nav_space.roomy & (world.clearance >= radius + 0.3))
-    shut = rectangle(change["center"], change["size"], change["yaw"])
     rng = np.random.default_rng(SEED)
-    chosen: dict[bool, list[dict]] = {True: [], False: []}
-    wanted = {True: crossing, False: others}
-    while any(len(chosen[k]) < wanted[k] for k in chosen):
-        a, b = ends[rng.integers(len(ends), size=2)]
-        start, goal = world.to_world(a), world.to_world(b)
-        yaw = round(float(rng.uniform(-180, 180)), 1)
-        mapped = make_trial(world, space.passable, 0, (*start, yaw), tuple(goal))
-        if mapped is None or not 30.0 <= mapped.shortest_m <= 60.0:
-            continue
-        through = bool(LineString(mapped.shortest_path).intersects(shut))
-        if len(chosen[through]) >= wanted[through]:
-            continue
-        navigated = make_trial(nav, nav_space.passable, 0, (*start, yaw), tuple(goal))
-        if navigated is None or navigated.shortest_m > 2.5 * mapped.shortest_m:
-            continue
-        if through and navigated.shortest_m < mapped.shortest_m + DETOUR_M:
-            continue  # the way round is hardly longer: the change would not matter
-        chosen[through].append(
-            {
-                "start": [round(float(start[0]), 3), round(float(start[1]), 3), yaw],
-                "goal": [round(float(goal[0]), 3), round(float(goal[1]), 3)],
-            }
-        )
-    return chosen[True] + chosen[False]
+    return change_trials(spec, origin, [change], crossing, others, rng, (30.0, 60.0), DETOUR_M, 2.5)
 
 
 def write(spec: dict, name: str, header: str) -> Path:
