@@ -1,7 +1,7 @@
 """Shared by the ``tune_*.py`` scripts: generated scenes in the benchmark's two settings, and
 mapping drives recorded once and replayed offline.
 
-The tuning rule (BENCHMARKS.md): parameters are chosen on scenes from ``scenarios.generators``
+The tuning rule (BENCHMARKS.md, "Design choices: the tuning rule"): parameters are chosen on scenes from ``scenarios.generators``
 with seeds disjoint from the benchmark's, never on a bundled benchmark scene (corridor_150m,
 tiny, ...). ``generated_scenario`` refuses the benchmark's seeds.
 

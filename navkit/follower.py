@@ -18,7 +18,7 @@ otherwise drive forward. Additions, each small and documented:
   threshold ends there too). At 5 Hz a robot at full speed moves 0.2 m a tick: it jumped over
   a 0.15 m corner disc and passed by projection beside it, then arced round, swinging 0.06 m
   off the path onto door jambs that the planner passes with a few centimetres to spare
-  (BENCHMARKS.md, session 7); with these, 0.02-0.03 m;
+  (BENCHMARKS.md, "Design choices: the follower's corner rules"); with these, 0.02-0.03 m;
 * while driving, a proportional angular correction, and a linear speed that falls smoothly to
   zero as the heading error reaches the turn-in-place threshold (no jump between the modes)
   and slows over the last ``slowdown_distance`` metres of the path.

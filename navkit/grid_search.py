@@ -1053,7 +1053,8 @@ def _pulled(sight: NDArray[np.uint8], cells: NDArray[np.int64]) -> NDArray[np.in
 def astar_smoothed(free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDArray[np.uint8] | None = None) -> CellPath | None:
     """``astar``'s 8-connected shortest path, then ``theta_star``'s shortcut and refinement: an
     any-angle path (``line_of_sight`` on every segment) found with cheaper expansions than
-    Lazy Theta*'s, 0.1-0.3 % longer on the baseline's maps (BENCHMARKS.md)."""
+    Lazy Theta*'s, 0.1-0.3 % longer on the baseline's maps (BENCHMARKS.md, "Design choices: the search
+    algorithm")."""
     grid, start, goal = _as_grid(free), _cell(start), _cell(goal)
     if not (_is_free(grid, start) and _is_free(grid, goal)):
         return None
@@ -1238,5 +1239,5 @@ def _trace_jumps(parent, start, goal, width):
 
 
 # the any-angle searches by name (each ``(free, start, goal, sight) -> cells or None``), for the
-# planners' ``search`` settings: chosen by measurement (BENCHMARKS.md)
+# planners' ``search`` settings: chosen by measurement (BENCHMARKS.md, "Design choices: the search algorithm")
 SEARCHES: dict[str, Callable[..., CellPath | None]] = {"astar": astar_smoothed, "jps": jps_smoothed, "theta_star": theta_star}

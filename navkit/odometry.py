@@ -31,14 +31,16 @@ graphs", and measurements on the bundled scenarios):
   Point-to-line does not care where along a wall a return lands, so the first scan's walls fix
   the heading. On the noisy drives of generated trees 103 and 105 the pose at each place's first
   visit went from 0.27 / 0.41 m off at most to 0.03 / 0.03 m, and the metric baseline's map
-  (ATE, trees 101-103) from 0.086 to 0.021 m mean (BENCHMARKS.md, session 11). Cost: about twice
+  (ATE, trees 101-103) from 0.086 to 0.021 m mean (BENCHMARKS.md, "Design choices: point-to-line
+  lidar odometry"). Cost: about twice
   kiss-icp's CPU per scan (13 ms instead of 6.5 on the shared machine). Off, kiss-icp alone.
   Along a corridor the walls fix the heading and the cross position but not where along it the
   robot is; there (``line_corner_ratio``) the scan points that land on door jambs and corners,
   which lie on no line, pull along that free direction alone. Without that the position along
   the corridors of a generated noisy ring building (seed 101) followed the wheels' prior and
   drifted (first visits 0.46 m median off, kiss-icp alone 0.33 m); with it 0.19 m, while the
-  generated trees' first visits moved by 6 mm at most (BENCHMARKS.md, session 12).
+  generated trees' first visits moved by 6 mm at most (BENCHMARKS.md, "Design choices: door jambs
+  fix the position along corridors").
 
 The robot drives on a plane, so each estimate is projected to SE(2) (x, y, yaw) and, with
 ``planar`` on, fed back as a planar pose before the local map is updated: the unobservable z,

@@ -37,7 +37,8 @@ EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm me
 # (edge rotation errors ~0.3° median, up to 2°). It is also subtracted from the hints' measured
 # disagreement with the edges: at 1° it explained away the whole heading noise of 0.5°/m odometry
 # and the relaxation trusted drifting hints (map poses 1.3 m off on a generated noisy ring, 0.5°:
-# 1.1 m; no change with precise odometry; benchmarks: BENCHMARKS.md, "Rooms as locations")
+# 1.1 m; no change with precise odometry; benchmarks: BENCHMARKS.md, "Design choices: the
+# relaxation's edge heading sigma for map poses")
 EDGE_SIGMA_YAW = np.radians(0.5)
 HINT_FLOOR_XY = 0.001  # m: no relative hint is trusted more than this ...
 HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
@@ -90,7 +91,7 @@ def _hint_noise(graph: TopologicalGraph, travel: NDArray, hints: NDArray | None 
     # what the edges' own errors explain is counted twice over: edges a little worse than their
     # assumed sigma made exact hints look noisy (loop_office_door, precise: k_yaw 0.04 deg/sqrt(m),
     # relaxed poses 0.19 m median off the exact hints, goals converted 0.4 m off); on generated
-    # noisy drives the map poses moved by 1-10 % (BENCHMARKS.md, session 7)
+    # noisy drives the map poses moved by 1-10 % (BENCHMARKS.md, "Design choices: map poses' hint noise")
     # medians, robust to the odd wrong edge, turned into variances: the median of a squared normal
     # is 0.455 sigma^2 (chi-square, 1 degree of freedom), of a squared 2D distance 1.386 sigma^2 a side
     k_xy = np.sqrt(max(float(np.median(xy)) / CHI2_MEDIAN_2 - EXPLAINED * EDGE_SIGMA_XY**2, 0.0) / per_metre)
@@ -108,7 +109,8 @@ def hint_chain(graph: TopologicalGraph) -> tuple[str, NDArray[np.float64]]:
     exact odometry the two hints agree within a few hundredths of a degree an edge, far below the
     edges' own ~0.25°, and the odometry is kept (choosing by agreement with the edges alone picked
     the lidar on one of four generated precise drives: 0.21 m off instead of exact); with odometry
-    drifting 0.5°/√m it disagrees ~1° an edge and the lidar is taken (BENCHMARKS.md, "Lidar hints").
+    drifting 0.5°/√m it disagrees ~1° an edge and the lidar is taken (BENCHMARKS.md, "Design choices:
+    lidar hints for map-frame goals").
     """
     odometry = np.array([v.pose_hint for v in graph.vertices], dtype=np.float64).reshape(-1, 3)
     if not graph.vertices or any(v.lidar_hint is None for v in graph.vertices) or not graph.edge_count:

@@ -150,7 +150,8 @@ class Localizer:
         around a guess (``guess_translation_tolerance``: drift over a long drive, a loop coming
         round), a candidate the hinted match refuses is matched again without the guess and kept
         if it lies within the gate (on a generated ring with noisy odometry, places mapped twice
-        fell from 20 to 4 of the route's late locations: BENCHMARKS.md, "Edge measurements").
+        fell from 20 to 4 of the route's late locations: BENCHMARKS.md, "Design choices: edge
+        measurements").
         top_k: how many descriptor neighbours to verify (default: the config's).
         """
         ids, _ = self.graph.nearest(descriptor, top_k or self.config.top_k)

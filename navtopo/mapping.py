@@ -25,8 +25,9 @@ Edges are measured again and again while mapping: each time one scan matches bot
 along the edge, and inside a location with a neighbour's centre about as near as its own), and
 the edge keeps the information-weighted mean of its measurements, each weighted by the
 covariance the matcher reports (a match sharing few walls fixes the rotation poorly: a degree off
-where the usual error is a tenth, BENCHMARKS.md "Edge measurements"). The first measurement is the
-pose in the location the new one was made from, as odometry carried it since its last match.
+where the usual error is a tenth, BENCHMARKS.md, "Design choices: edge measurements"). The first
+measurement is the pose in the location the new one was made from, as odometry carried it since its
+last match.
 
 Every new edge is checked first (the reference code did not): its length must be at most
 ``2 * max_edge_length``, and where the graph already joins its ends by a path that is not much
@@ -658,8 +659,9 @@ class GraphMaintainer:
         The hints share the mapping run's odometry frame with the robot and drift apart by what
         odometry travelled between their making: between a vertex made long ago and the robot now,
         the whole route since (a 67 m gate after 1.3 km let a place 26 m away that looked alike close
-        a loop on loop_office_door; BENCHMARKS.md, session 7). The robot's pose in the current vertex
-        is scan-matched, so through the current vertex's hint the drift is only that between the two
+        a loop on loop_office_door; BENCHMARKS.md, "Design choices: loop-closure candidates gated
+        through the current location's hint"). The robot's pose in the current vertex is
+        scan-matched, so through the current vertex's hint the drift is only that between the two
         vertices' making, plus since the last match: a vertex farther than that from the robot by
         the current vertex's hint is left out. (Seeding the matcher from that hint instead of
         odometry changed the maps of a generated noisy ring for the worse: 5 places mapped twice

@@ -62,7 +62,7 @@ class PlanningConfig(BaseModel):
         "jps",
         description="the local search (navkit.grid_search.SEARCHES, the baseline's): jump point search string-pulled "
         "to any angle (jps), the same with A* (astar), or Lazy Theta* (theta_star); paths within 0.1 % of each "
-        "other, jps the fastest (BENCHMARKS.md)",
+        'other, jps the fastest (BENCHMARKS.md, "Design choices: the search algorithm")',
     )
     target_step: float = Field(0.2, gt=0, description="spacing of the points tried along the global path (lookahead)")
     target_clearance: float = Field(0.05, ge=0, description="a lookahead target keeps this much more than the path's margin")
@@ -77,7 +77,8 @@ class PlanningConfig(BaseModel):
         ge=0,
         description="m beyond the first level's clearance that a local path is eased off the known walls where the "
         "free space allows (navkit.grid_planning.ease_path, as the baseline's paths are; 0, the default: the shortest "
-        "path; 0.2 m cost 0.01-0.05 of efficiency on generated door scenes, BENCHMARKS.md, session 16)",
+        'path; 0.2 m cost 0.01-0.05 of efficiency on generated door scenes, BENCHMARKS.md, "Design choices: paths '
+        'eased off walls")',
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(

@@ -93,10 +93,11 @@ class MatchingConfig(BaseModel):
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
     # Chosen on generated scenes (benchmarks/tune_scan_matching.py, seeds 101-103, 1,800 near and
-    # 3,000 far pairs; BENCHMARKS.md, "Tuning"). With an odometry guess (tracking, moving along an
-    # edge, mapping) 0.90 accepted no wrong pose and 95 % of the right ones (0.88: 1 wrong of 1,800).
-    # Without one (place-recognition candidates) 0.96 together with min_score 0.40 accepted no wrong
-    # pose of 4,800 at near recall 0.52 (at min_score 0.20 it let 2 far pairs through).
+    # 3,000 far pairs; BENCHMARKS.md, "Design choices: NavTopo's scan-matching verdict"). With an
+    # odometry guess (tracking, moving along an edge, mapping) 0.90 accepted no wrong pose and 95 %
+    # of the right ones (0.88: 1 wrong of 1,800). Without one (place-recognition candidates) 0.96
+    # together with min_score 0.40 accepted no wrong pose of 4,800 at near recall 0.52 (at min_score
+    # 0.20 it let 2 far pairs through).
     min_wall_agreement: float = Field(default=0.90, ge=0.0, le=1.0, description="with an initial guess")
     min_wall_agreement_no_guess: float = Field(default=0.96, ge=0.0, le=1.0, description="without an initial guess")
     min_overlap: float = Field(default=0.2, ge=0.0, le=1.0, description="shared known area over the smaller one")
@@ -534,7 +535,7 @@ def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, co
     inverse information times the residuals' variance (at least a quarter cell's). Few walls in
     common, or walls of one direction only, leave the rotation (or the slide along them) weakly
     fixed: the matches whose rotation is off by a degree are the ones this calls uncertain
-    (BENCHMARKS.md, "Edge measurements")."""
+    (BENCHMARKS.md, "Design choices: edge measurements")."""
     pose = np.asarray(pose, dtype=np.float64)
     x, y, yaw = pose[0], pose[1], pose[2]
     h, _, squares, used = _field_normal_equations(query.occupied_xy, x, y, yaw, *_field(reference), config.field_cutoff)

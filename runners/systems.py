@@ -225,7 +225,8 @@ class Oracle:
         self.world = context.ground_truth.world
         # the raster marks a cell by its centre, so a wall may reach half a cell diagonal into a free
         # cell: the tight level keeps that much beyond the radius (door jambs' corners; BENCHMARKS.md,
-        # session 6: on a generated ring with 0.8 m doors it collided in 8 of 11 trials without it)
+        # "Design choices: the oracle's tight level": on a generated ring with 0.8 m doors it collided in
+        # 8 of 11 trials without it)
         self.passable_tight = self.world.eroded(context.robot.radius + self.world.resolution * np.sqrt(0.5))
         self.passable = self.world.eroded(context.robot.radius + config.clearance_margin)
         self.follower = PathFollower(config.follower.for_robot(context))

@@ -99,7 +99,8 @@ def legal_steps(free: np.ndarray, cells: np.ndarray) -> bool:
 
 @pytest.mark.parametrize("angle", [30.0, 36.0, 45.0, 54.0, 60.0])
 def test_a_slanted_passage_whose_narrow_levels_touch_only_diagonally_is_passed(angle):
-    """The noisy ring's no_path (BENCHMARKS.md, slam-ring noisy): the medial level's cells along a
+    """The noisy ring's no_path (BENCHMARKS.md, "Design choices: planning levels joined where they touch
+    only diagonally"): the medial level's cells along a
     slanted passage are 8-connected but not 4-connected, and the search, which never cuts a corner,
     could not walk along them. ``grid_search.passable`` bridges each diagonal-only touch with its
     clearer side cell; the path stays legal on the raw free space and keeps, at every cell and

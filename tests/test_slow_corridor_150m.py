@@ -1,6 +1,6 @@
 """The headline figures on corridor_150m, both settings, as full runs (``make test-slow``; ~1 h each
 on 2 cores). Bounds are the issues' targets; speed and memory are benchmark figures
-(BENCHMARKS.md), not asserted here."""
+(BENCHMARKS.md, "Table 1"), not asserted here."""
 
 from __future__ import annotations
 

@@ -110,12 +110,14 @@ class PlanningConfig(BaseModel):
 
 #: Overrides for the benchmark's noisy setting (wheel odometry with 2 % and 0.5°/m random walks,
 #: lidar range noise 1 cm), chosen on generated scenes (benchmarks/tune_metric_mapping.py, trees
-#: seeds 101-103 and a ring building; BENCHMARKS.md, "Tuning"): noisy wheels fail on every generated
-#: scene (wall recall 0.33-0.85, the map turned up to 2.5°), so kiss-icp seeded by the wheels; of the
+#: seeds 101-103 and a ring building; BENCHMARKS.md, "Design choices: the metric baseline's odometry
+#: source and odometry-factor sigmas"): noisy wheels fail on every generated scene (wall recall
+#: 0.33-0.85, the map turned up to 2.5°), so kiss-icp seeded by the wheels; of the
 #: odometry-factor sigmas tried, yaw 0.1° + 0.1°/m with the default xy sigmas had the best worst case
 #: over the four noisy scenes (trees 0.969 mean / 0.919 worst, ring 0.904 wall recall). Since
-#: session 11 the lidar odometry refines kiss-icp point-to-line (``navkit.odometry``), for both
-#: systems: on the same trees wall recall 0.991 mean / 0.986 worst, ATE 0.086 -> 0.021 m mean.
+#: ``959fe02`` the lidar odometry refines kiss-icp point-to-line (``navkit.odometry``), for both
+#: systems: on the same trees wall recall 0.991 mean / 0.986 worst, ATE 0.086 -> 0.021 m mean
+#: (BENCHMARKS.md, "Design choices: point-to-line lidar odometry").
 NOISY_ODOMETRY: dict[str, Any] = {
     "odometry": {"source": "lidar"},
     "pose_graph": {"odometry_sigma_yaw_deg": 0.1, "odometry_sigma_yaw_deg_per_m": 0.1},
@@ -123,8 +125,8 @@ NOISY_ODOMETRY: dict[str, Any] = {
 
 #: Overrides for the benchmark's precise setting (exact wheel odometry): odometry factors as tight
 #: as the odometry (0.002 m + 0.002/m, 0.02° + 0.02°/m), chosen on generated scenes
-#: (benchmarks/tune_metric_mapping.py, candidate ``wheel-precise``; BENCHMARKS.md, "The metric
-#: baseline's precise recipe"). With the default factors (0.02 m + 0.02/m, 0.5° + 0.5°/m) the few
+#: (benchmarks/tune_metric_mapping.py, candidate ``wheel-precise``; BENCHMARKS.md, "Design choices: the
+#: metric baseline's precise recipe"). With the default factors (0.02 m + 0.02/m, 0.5° + 0.5°/m) the few
 #: loop closures a few tenths of a degree off bent exact odometry by 0.03-0.08 m RMS (ATE) on the
 #: generated trees and ring, and by up to 0.28 m over an 800 m route: stops 0.51-0.52 m from goals.
 #: Tight factors keep the loops (they still close, and agree) and the ATE at 0.002-0.007 m.
@@ -149,13 +151,14 @@ SETTING_OVERRIDES: dict[str, dict[str, Any]] = {
 class MetricGridConfig(BaseModel):
     """Every parameter of the metric baseline; defaults are for the benchmark's precise odometry.
 
-    * ``odometry.source: wheel``: with precise wheel odometry the keyframes get the true relative
-      poses, the best map on every generated scene tried (BENCHMARKS.md, "Tuning"); under the
-      precise setting the runner also applies ``SETTING_OVERRIDES["precise"]`` (``PRECISE_ODOMETRY``:
-      odometry factors as tight as the odometry, so that loop closures cannot bend it). With noisy
-      wheel odometry (2 %, 0.5°/m) the runner applies ``SETTING_OVERRIDES["noisy"]``
-      (``NOISY_ODOMETRY``: kiss-icp seeded by the wheels, tighter yaw factors, loop closures on
-      top). The same odometry tracks the pose during navigation.
+    * ``odometry.source: wheel``: with precise wheel odometry the keyframes get the true
+      relative poses, the best map on every generated scene tried (BENCHMARKS.md, "Design
+      choices: the metric baseline's odometry source and odometry-factor sigmas"); under the
+      precise setting the runner also applies ``SETTING_OVERRIDES["precise"]``
+      (``PRECISE_ODOMETRY``: odometry factors as tight as the odometry, so that loop closures
+      cannot bend it). With noisy wheel odometry (2 %, 0.5°/m) the runner applies
+      ``SETTING_OVERRIDES["noisy"]`` (``NOISY_ODOMETRY``: kiss-icp seeded by the wheels, tighter
+      yaw factors, loop closures on top). The same odometry tracks the pose during navigation.
     * ``localization.enabled: true``: scan-to-map registration, as a deployed robot localises on its
       map (AMCL in Nav2, RTAB-MAP's localisation mode). With noisy odometry it is what makes trials
       succeed (tracking error 0.17 m median -> 5 mm on ``tiny``); with precise odometry it costs a

@@ -365,7 +365,8 @@ class MetricGrid:
         (``navkit.explore``, as NavTopo's start-up), each ``explore_distance`` long. (Moving toward the
         goal by the unconfirmed candidate instead was tried: on the symmetric loop_office_door the
         views along the way to the goal kept dropping the right candidate as ambiguous, 4 of 8 trials
-        not localized; BENCHMARKS.md, session 22.)"""
+        not localized; BENCHMARKS.md, "Design choices: the kidnapped baseline explores toward open
+        space".)"""
         explorer = self.explorer
         explorer.record(obs.odom)
         if not explorer.under_way(self._odometer.metres):
