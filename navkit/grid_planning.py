@@ -360,15 +360,22 @@ def split_at(points: NDArray[np.float64], arc: float) -> tuple[NDArray[np.float6
 def densify(points: ArrayLike, step: float) -> NDArray[np.float64]:
     """(M, 2) points along a polyline (K, 2), at most ``step`` apart, its vertices included (every
     leg cut into equal parts)."""
+    return densify_legs(points, step)[0]
+
+
+def densify_legs(points: ArrayLike, step: float) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """``densify``'s points (M, 2) and the leg each lies on (M,): leg k runs from vertex k to k + 1;
+    the first point (vertex 0) is on leg 0, each leg's end vertex on that leg."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if len(points) < 2:
-        return points.copy()
+        return points.copy(), np.zeros(len(points), dtype=np.int64)
     legs = np.diff(points, axis=0)
     counts = np.maximum(np.ceil(np.hypot(legs[:, 0], legs[:, 1]) / step).astype(np.int64), 1)
     leg = np.repeat(np.arange(len(legs)), counts)
     # the k-th of each leg's ``count`` points, k = 1..count: its start plus k / count of the leg
     k = np.arange(1, int(counts.sum()) + 1) - np.repeat(np.cumsum(counts) - counts, counts)
-    return np.vstack([points[:1], points[leg] + (k / counts[leg])[:, None] * legs[leg]])
+    dense = np.vstack([points[:1], points[leg] + (k / counts[leg])[:, None] * legs[leg]])
+    return dense, np.concatenate([[0], leg]).astype(np.int64)
 
 
 def leg_clearances(points: NDArray, clearance_at: ClearanceAt, step: float) -> NDArray[np.float64]:

@@ -87,6 +87,13 @@ class NavigationConfig(BaseModel):
     )
     passage_check_period: float = Field(0.2, ge=0, description="s of simulated time between checks of a passage")
     passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
+    route_check_confirm: float = Field(
+        0.6,
+        description="s: new obstacles that shut an edge of the route ahead (LocalPlanner.blocked_leg, checked at every "
+        "plan) must still shut it this much later before the edge is removed and the route planned again round it, as "
+        "soon as seen rather than when the robot stands before them (a shut door; a return off by a few decimetres "
+        "that later rays pass through is forgotten meanwhile); negative: never checked",
+    )
     recoveries: int = Field(
         3,
         ge=0,
@@ -187,6 +194,7 @@ class Navigator:
     _odometer: Odometer = field(default_factory=Odometer)  # of this trial
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
+    _shut_since: tuple[tuple[int, int], float] | None = None  # the route's edge new obstacles shut, since when
     passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
 
     def reset(self) -> None:
@@ -212,6 +220,7 @@ class Navigator:
                 "passages_blocked",
                 "scan_plans",
                 "recoveries",
+                "edges_shut_ahead",
             ],
             0,
         )
@@ -236,6 +245,7 @@ class Navigator:
         self._tentative = None
         self._odometer, self._lost_since = Odometer(), None
         self._removed = {}
+        self._shut_since = None
         self._passages().clear()
 
     # -- the goal server ----------------------------------------------------------------------------
@@ -413,6 +423,8 @@ class Navigator:
         since = obs.stamp - self._plan_stamp
         if since >= self.local.config.replan_period:
             return True
+        if self._shut_since is not None and obs.stamp - self._shut_since[1] >= self.config.route_check_confirm:
+            return True  # an edge ahead looked shut: look again
         near_end = self.follower.path_length - self.follower.progress < self.config.replan_before_end
         if self.local.config.smoothing == "lookahead" and near_end and not self._target_is_goal and since >= 0.5:
             return True  # reach further before the robot slows down at the end of its path
@@ -442,6 +454,8 @@ class Navigator:
             goal_point = transform_points(positions[-1], self.goal.pose[None])
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
             union = self.unions.get(vertex)
+            if not tentative and self._shut_ahead(obs, union, pose, route, points):
+                continue  # the edge is gone: the route again, round it
             target = self.local.target(union, pose, points, self._recent_obstacles())
             planned = self.local.plan(union, pose, target, self._recent_obstacles())
             if planned is None and not _same_point(target, points[0]):  # a shorter reach: the next vertex
@@ -480,6 +494,30 @@ class Navigator:
         self._passages().set_path(self.follower.path, None if medial is None else union.passable_at(kind, radius))
         if not tentative:
             self._describe(self._following(route))
+        return True
+
+    def _shut_ahead(self, obs: Observation, union: UnionGrid, pose: NDArray, route: list[int], points: NDArray) -> bool:
+        """Whether new obstacles shut an edge of the route ahead (``LocalPlanner.blocked_leg``) for
+        ``route_check_confirm`` s: then it is removed (counted, ``edges_shut_ahead``). A leg into
+        the goal's location's own goal point is no edge: the plan to it decides."""
+        confirm = self.config.route_check_confirm
+        if confirm < 0:
+            return False
+        leg = self.local.blocked_leg(union, pose, points, self._recent_obstacles())
+        if leg is None or leg >= len(route) - 1:
+            self._shut_since = None
+            return False
+        edge = (route[leg], route[leg + 1])
+        if self._shut_since is None or self._shut_since[0] != edge:
+            self._shut_since = (edge, obs.stamp)  # plans again then (``_needs_plan``) to look again
+            return False
+        if obs.stamp - self._shut_since[1] < confirm:
+            return False
+        self._shut_since = None
+        self.counters["edges_removed"] += 1
+        self.counters["edges_shut_ahead"] += 1
+        self.global_planner.remove_edge(*edge)
+        self._removed[edge] = "shut ahead"
         return True
 
     def _recover(self, union: UnionGrid, pose: NDArray, target: NDArray) -> bool:
@@ -668,7 +706,7 @@ class Navigator:
         removed = [f"{u}-{v} ({why})" for (u, v), why in self._removed.items()]
         listed = ", ".join(removed[:4]) + (f" and {len(removed) - 4} more" if len(removed) > 4 else "")
         detail = f"no route left from location {vertex} to the goal's location {self.goal.vertex}, edges removed {listed}{far}"
-        local = any(why == "no local path" for why in self._removed.values())
+        local = any(why in ("no local path", "shut ahead") for why in self._removed.values())
         return (FailureStage.LOCAL_PLAN if local else FailureStage.FOLLOWER), detail
 
     def _reached_detail(self, where: str) -> str:

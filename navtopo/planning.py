@@ -38,7 +38,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from navkit import grid_search
 from navkit.geometry import chain, compose, inverse, transform_points
-from navkit.grid_planning import PlannedPath, densify, plan_path
+from navkit.grid_planning import PlannedPath, densify, densify_legs, plan_path
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navkit.scan_grid import GridConfig
 from navtopo.graph import TopologicalGraph
@@ -498,6 +498,33 @@ class LocalPlanner:
         if fits:
             points[-1] = target
         return PlannedPath(points, planned.level)
+
+    def blocked_leg(self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray) -> int | None:
+        """The leg of the polyline robot -> ``route`` (K, 2, as ``target``'s) that new obstacles
+        (``blocked_xy``) shut, seen before the robot gets there: None, or k (the leg from route point
+        k - 1, the robot for k = 0, to route point k).
+
+        Where the polyline first crosses cells the map leaves free for the robot and the obstacles
+        do not, the union grid is asked for a way from the robot to the polyline's first free point
+        past them: the leg is shut when there is one on the map and none with the obstacles (a door
+        shut across a corridor; an obstacle the robot can pass round leaves a way, and one on the
+        far side of the grid's known space, none on the map either: neither is a verdict)."""
+        if not len(blocked_xy) or not len(route):
+            return None
+        samples, legs = densify_legs(np.vstack([start[None, :2], route]), self.config.target_step)
+        mapped = union.values_at(samples, _passable(union, "known", self.tight), False)
+        now = union.values_at(samples, _passable(union, "known", self.tight, blocked_xy=blocked_xy), False)
+        away = np.hypot(*(samples - start[:2]).T) >= 1.0  # at the robot: the path's own check (``path_ahead_blocked``)
+        shut = np.flatnonzero(mapped & ~now & away)
+        if not len(shut):
+            return None
+        past = np.flatnonzero(now[shut[0] :])
+        if not len(past):
+            return None
+        beyond = samples[shut[0] + int(past[0])]
+        if self.plan(union, start, beyond, blocked_xy) is not None or self.plan(union, start, beyond) is None:
+            return None
+        return int(legs[shut[0]])
 
     def new_obstacles(self, union: UnionGrid, pose: NDArray, points: NDArray) -> NDArray[np.float64]:
         """Obstacle returns (N, 2+, robot frame) near the robot that no mapped wall explains, in v_cur's frame."""

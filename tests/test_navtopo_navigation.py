@@ -371,6 +371,32 @@ def test_a_way_found_only_through_unknown_space_far_round_is_refused():
     assert step is not None and planner.levels[step.level][0] == "unknown"  # short: kept
 
 
+def test_an_edge_ahead_shut_by_new_obstacles_is_told_before_the_robot_gets_there():
+    """A corridor the location saw whole, then a door shut across it 4 m ahead: the leg of the route
+    through it is named (the first leg, or the second where a route point lies before the door), while
+    an obstacle the robot passes round, and a door beyond the known space, name none."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+    centre = GRID.size // 2
+    to = lambda v: centre + int(round(v / GRID.resolution))  # noqa: E731
+    grid[to(-1) : to(1), to(-3) : to(10)] = FREE  # a 2 m wide corridor along x, known to x = 10
+    grid[to(-1.2) : to(-1), to(-3) : to(10)] = OCCUPIED
+    grid[to(1) : to(1.2), to(-3) : to(10)] = OCCUPIED
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    planner = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig())
+    door = np.array([[4.0, y] for y in np.arange(-1.0, 1.0, 0.05)])
+    start = np.zeros(3)
+    assert planner.blocked_leg(union, start, np.array([[6.0, 0.0], [9.0, 0.0]]), door) == 0
+    assert planner.blocked_leg(union, start, np.array([[3.0, 0.0], [8.0, 0.0]]), door) == 1
+    assert planner.blocked_leg(union, start, np.array([[6.0, 0.0]]), np.zeros((0, 2))) is None  # nothing new
+    box = np.array([[4.0 + dx, y] for dx in (0.0, 0.1, 0.2) for y in np.arange(0.4, 1.0, 0.05)])  # 1.4 m left
+    assert planner.blocked_leg(union, start, np.array([[6.0, 0.0], [9.0, 0.0]]), box) is None
+    far = np.array([[11.0, y] for y in np.arange(-1.0, 1.0, 0.05)])  # past the known space: no verdict
+    assert planner.blocked_leg(union, start, np.array([[9.0, 0.0], [13.0, 0.0]]), far) is None
+
+
 def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     """Exploring paths are planned in one scan's grid, unknown cells counted free (a door seen at a
     slant), and driving by an unconfirmed hypothesis follows a path in a map that may be another
