@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
 
 from navkit import grid_search
 from navkit.geometry import chain, compose, inverse, transform_points
@@ -512,8 +513,9 @@ class LocalPlanner:
         if not len(blocked_xy) or not len(route):
             return None
         samples, legs = densify_legs(np.vstack([start[None, :2], route]), self.config.target_step)
-        mapped = union.values_at(samples, _passable(union, "known", self.tight), False)
-        now = union.values_at(samples, _passable(union, "known", self.tight, blocked_xy=blocked_xy), False)
+        mapped = union.values_at(samples, union.mask("known", self.tight), False)
+        near = cKDTree(np.asarray(blocked_xy, dtype=np.float64)[:, :2]).query(samples, distance_upper_bound=self.tight)[0]
+        now = mapped & ~np.isfinite(near)  # no obstacle within the robot's reach of the point
         away = np.hypot(*(samples - start[:2]).T) >= 1.0  # at the robot: the path's own check (``path_ahead_blocked``)
         shut = np.flatnonzero(mapped & ~now & away)
         if not len(shut):
