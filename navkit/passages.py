@@ -204,10 +204,10 @@ def fit_passage(
         d_in, d_out = (grid.ravel() for grid in np.meshgrid(entry_shifts, exit_shifts, indexing="ij"))
         moved_in = entry[None] + d_in[:, None] * normal
         moved_out = passage.exit[None] + d_out[:, None] * normal
-        nearest = _segment_distances(moved_in, moved_out, returns).min(axis=1)
-        nearest = np.minimum(nearest, _segment_distances(moved_out, np.repeat(tail[:1], len(d_out), 0), returns).min(axis=1))
+        nearest = segment_distances(moved_in, moved_out, returns).min(axis=1)
+        nearest = np.minimum(nearest, segment_distances(moved_out, np.repeat(tail[:1], len(d_out), 0), returns).min(axis=1))
         if len(head):
-            nearest = np.minimum(nearest, _segment_distances(np.repeat(head[-1:], len(d_in), 0), moved_in, returns).min(axis=1))
+            nearest = np.minimum(nearest, segment_distances(np.repeat(head[-1:], len(d_in), 0), moved_in, returns).min(axis=1))
         return np.minimum(nearest, fixed), d_in, d_out
 
     def best_of(entry_shifts: NDArray, exit_shifts: NDArray) -> tuple[float, float, float]:
@@ -254,7 +254,7 @@ def moved_passage(
     )
 
 
-def _segment_distances(starts: NDArray, ends: NDArray, points: NDArray) -> NDArray[np.float64]:
+def segment_distances(starts: NDArray, ends: NDArray, points: NDArray) -> NDArray[np.float64]:
     """(C, N) the distance from each of ``points`` (N, 2) to each segment ``starts`` (C, 2) -> ``ends`` (C, 2)."""
     vectors = ends - starts
     lengths2 = np.maximum((vectors**2).sum(axis=1), 1e-12)

@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 from navkit import grid_search
 from navkit.geometry import chain, compose, inverse, transform_points
 from navkit.grid_planning import PlannedPath, densify, densify_legs, plan_path
+from navkit.passages import segment_distances
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navkit.scan_grid import GridConfig
 from navtopo.graph import TopologicalGraph
@@ -72,6 +73,18 @@ class PlanningConfig(BaseModel):
         gt=0,
         description="m: where the global path comes back this much nearer the robot than it has been, the lookahead "
         "stops (a path out to a vertex and back, round a place the graph joins the long way)",
+    )
+    target_cut: bool = Field(
+        True,
+        description="lookahead: the route's points are cut to the farthest one the robot has a straight way to "
+        "through the known free space (its vertices' positions left behind, as a string pulled tight), so a location "
+        "made in a doorway or a room beside the way does not draw the path into it",
+    )
+    target_cut_reach: float = Field(
+        2.0,
+        gt=0,
+        description="m: a route point is left behind only if the straight way passes this near it (within its "
+        "location, whose grid the maintainer moves through; a location the route only reaches round a loop is not)",
     )
     keep_clear: float = Field(
         0.0,
@@ -417,9 +430,12 @@ class LocalPlanner:
         # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m),
         # before the polyline first leaves that space beyond there: a route that comes back near
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
-        samples = densify(np.vstack([start[None, :2], route]), self.config.target_step)
         reach = self.wide + self.config.target_clearance
-        free = union.values_at(samples, _passable(union, "known", reach, blocked_xy=blocked_xy), False)
+        passable = _passable(union, "known", reach, blocked_xy=blocked_xy)
+        if self.config.target_cut:
+            route = route[self._farthest_in_sight(union, passable, start, route) :]
+        samples = densify(np.vstack([start[None, :2], route]), self.config.target_step)
+        free = union.values_at(samples, passable, False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
         leaves = np.flatnonzero(~free[first:])
@@ -434,6 +450,20 @@ class LocalPlanner:
             end = min(end, int(back[0]))
         candidates = np.flatnonzero(free[:end] & beyond_next[:end])
         return samples[candidates[-1]] if len(candidates) else route[0]
+
+    def _farthest_in_sight(self, union: UnionGrid, passable: NDArray[np.bool_], start: NDArray, route: NDArray) -> int:
+        """The index of the last route point (K, 2) the straight way from ``start`` reaches through
+        ``passable`` cells, passing every point before it within ``target_cut_reach`` (0 when none but
+        the first does: the route is followed from there)."""
+        open_points = union.values_at(route, passable, False)
+        for k in np.flatnonzero(open_points[1:])[::-1] + 1:
+            skipped = segment_distances(start[None, :2], route[k][None], route[:k])[0]
+            if skipped.max() > self.config.target_cut_reach:
+                continue  # a location off the way: the maintainer moves through it, the way must pass it
+            way = densify(np.vstack([start[None, :2], route[k][None]]), self.config.target_step)
+            if union.values_at(way, passable, False)[1:].all():
+                return int(k)
+        return 0
 
     def _search(
         self,

@@ -327,6 +327,31 @@ def test_the_lookahead_target_stops_where_the_route_first_leaves_the_known_free_
     assert abs(before[1]) < 0.5 and 1.0 <= before[0] < 2.5 - 0.3
 
 
+def test_the_lookahead_target_leaves_behind_a_location_made_in_a_doorway_beside_the_way():
+    """A corridor along x with a door in its lower wall, and the route's next location standing in
+    that doorway (the mapping drive looked into the room there): the target runs on along the
+    corridor to the location after it, which the robot sees straight ahead, not into the doorway;
+    without the cut (the route's points followed) it stops at the doorway."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+    centre = GRID.size // 2
+    to = lambda v: centre + int(round(v / GRID.resolution))  # noqa: E731
+    grid[to(-1) : to(1.4), to(-3) : to(12)] = FREE  # a 2.4 m corridor along x
+    grid[to(-1.2) : to(-1), to(-3) : to(12)] = OCCUPIED
+    grid[to(1.4) : to(1.6), to(-3) : to(12)] = OCCUPIED
+    grid[to(-1.2) : to(-1), to(3.6) : to(4.4)] = FREE  # a 0.8 m door at x = 4 in the lower wall
+    grid[to(-4) : to(-1.2), to(2) : to(6)] = FREE  # the room below
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    route = np.array([[4.0, -1.1], [9.0, 0.2], [11.0, 0.2]])  # the doorway's location, then on along the corridor
+    cut = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(smoothing="lookahead"))
+    target = cut.target(union, np.array([0.0, 0.2, 0.0]), route)
+    assert target[0] > 8.5 and abs(target[1] - 0.2) < 0.3
+    kept = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(smoothing="lookahead", target_cut=False))
+    assert kept.target(union, np.array([0.0, 0.2, 0.0]), route)[0] <= 4.2  # the doorway's location at the most
+
+
 def test_the_lookahead_target_does_not_follow_a_path_that_comes_back_past_the_robot():
     """A global path out to a vertex 7 m ahead and back to one beside the robot (two locations at one
     junction, joined only through the far one): the target stays on the way out, all in free space."""
