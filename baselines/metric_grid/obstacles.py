@@ -49,9 +49,13 @@ class UnmappedObstacles:
         self.memory.clear()
         self.latest = np.zeros((0, 2))
 
-    def update(self, pose: NDArray, points: NDArray, walls: ScanToMap | None) -> None:
+    def update(self, pose: NDArray, points: NDArray, walls: ScanToMap | None, rays: NDArray | None = None) -> None:
         """Mark the returns (N, 2, robot frame) that the map does not explain (far from every mapped
-        wall of ``walls`` at ``pose``); clear the marked ones this scan sees through."""
+        wall of ``walls`` at ``pose``); clear the marked ones this scan sees through, judged by
+        ``rays`` (M, 2+, robot frame: every return of the band; ``points`` if None). A voxel-filtered
+        scan keeps one return in 0.1-0.2 m of a near wall, so most 1° directions along it have none
+        and looked open: a shut door behind a corner was forgotten as the robot turned away from it,
+        and the robot drove back and forth between the two ways round (a generated changed world)."""
         cfg = self.config
         self.latest = np.zeros((0, 2))
         if walls is None:
@@ -60,4 +64,4 @@ class UnmappedObstacles:
         if len(near):
             world = se2.transform_points(pose, near.astype(np.float64))
             self.latest = world[walls.sample(world)[0] > cfg.new_obstacle_distance]
-        self.memory.update(pose, points, self.latest, cfg.new_obstacle_range)
+        self.memory.update(pose, points if rays is None else rays, self.latest, cfg.new_obstacle_range)

@@ -299,7 +299,8 @@ class MetricGrid:
             raise RuntimeError("step() before set_goal()")
         if self.status.state != Status.ACTIVE:
             return Command()
-        points = voxel_filter_2d(obstacle_points(obs.points, self.band), self.config.localization.voxel)
+        band = obstacle_points(obs.points, self.band)
+        points = voxel_filter_2d(band, self.config.localization.voxel)
         turn = abs(float(self._odometer.update(obs.odom)[2]))
         if not self.tracker.localized:
             self._turned += turn
@@ -310,7 +311,7 @@ class MetricGrid:
             self.explorer.stop()
             self.follower.clear()
         self._keep_stage()
-        self.obstacles.update(pose, points, self.tracker.localizer)
+        self.obstacles.update(pose, points, self.tracker.localizer, rays=band)
         if self.progress.stalled(obs.stamp, obs.odom) and not self._recover():
             detail = (
                 f"no {self.config.planning.progress_distance:g} m of progress in {self.config.planning.progress_time:g} s "
