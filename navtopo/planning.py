@@ -453,13 +453,17 @@ class LocalPlanner:
 
     def _farthest_in_sight(self, union: UnionGrid, passable: NDArray[np.bool_], start: NDArray, route: NDArray) -> int:
         """The index of the last route point (K, 2) the straight way from ``start`` reaches through
-        ``passable`` cells, passing every point before it within ``target_cut_reach`` (0 when none but
-        the first does: the route is followed from there)."""
+        ``passable`` cells, passing every point before it within ``target_cut_reach`` and ahead of the
+        robot (0 when none but the first does: the route is followed from there)."""
         open_points = union.values_at(route, passable, False)
         for k in np.flatnonzero(open_points[1:])[::-1] + 1:
+            way = route[k] - start[:2]
+            along = (route[:k] - start[:2]) @ way / max(float(way @ way), 1e-12)
             skipped = segment_distances(start[None, :2], route[k][None], route[:k])[0]
-            if skipped.max() > self.config.target_cut_reach:
-                continue  # a location off the way: the maintainer moves through it, the way must pass it
+            if skipped.max() > self.config.target_cut_reach or along.min() <= 0.0:
+                # a location off the way, or behind the robot (a route out to a neighbour and back:
+                # the maintainer moves through each location in turn, the way must pass them)
+                continue
             way = densify(np.vstack([start[None, :2], route[k][None]]), self.config.target_step)
             if union.values_at(way, passable, False)[1:].all():
                 return int(k)

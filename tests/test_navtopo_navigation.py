@@ -348,6 +348,10 @@ def test_the_lookahead_target_leaves_behind_a_location_made_in_a_doorway_beside_
     cut = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(smoothing="lookahead"))
     target = cut.target(union, np.array([0.0, 0.2, 0.0]), route)
     assert target[0] > 8.5 and abs(target[1] - 0.2) < 0.3
+    # the route out to a location just behind the robot and back past it (two locations joined
+    # only through that one): the robot must pass through it, however near it stands
+    back = np.array([[-1.5, 0.2], [9.0, 0.2], [11.0, 0.2]])
+    assert cut.target(union, np.array([0.0, 0.2, 0.0]), back)[0] < 0.0
     kept = LocalPlanner(UnionGrids(graph, GRID, PlanningConfig()), 0.3, PlanningConfig(smoothing="lookahead", target_cut=False))
     assert kept.target(union, np.array([0.0, 0.2, 0.0]), route)[0] <= 4.2  # the doorway's location at the most
 
