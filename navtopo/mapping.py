@@ -58,6 +58,7 @@ from navkit.odometer import Odometer
 from navkit.raster import FREE, UNKNOWN, inside
 from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
+from navtopo.graph_poses import hint_chain
 from navtopo.local_grid import CroppedGrid, overlap, warp
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
@@ -136,10 +137,11 @@ class MappingConfig(BaseModel):
     shortcut_radius: float | None = Field(
         8.0,
         gt=0,
-        description="mapping's end: locations whose odometry hints lie within this (m, plus the drift the odometry "
-        "between their making explains) that the graph joins only the long way round (loop_ratio) are matched; "
-        "where the match is sure (shortcut_max_sigma), agrees with the graph's way round (closure_gate) and their "
-        "grids show a way for the robot between them (shortcut_detour), they are joined. None: no shortcuts",
+        description="mapping's end: locations whose hints (the lidar odometry's where the wheels drift) lie within "
+        "this (m, plus the drift the odometry between their making explains) that the graph joins only the long way "
+        "round (loop_ratio) are matched; where the match is sure (shortcut_max_sigma), agrees with the graph's way "
+        "round (closure_gate) and their grids show a way for the robot between them (shortcut_detour), they are "
+        "joined. None: no shortcuts",
     )
     shortcut_max_sigma: float = Field(0.25, gt=0, description="... each match fixing the pose to this (m, largest axis)")
     shortcut_detour: float = Field(
@@ -565,7 +567,8 @@ class GraphMaintainer:
         driven into and out of without reaching the junction's location). A route between them went
         round the block: 2-3 times the shortest way on generated lattices (issue 30).
 
-        Pairs whose odometry hints lie within ``shortcut_radius`` (plus what drift explains) and
+        Pairs whose hints (``graph_poses.hint_chain``: the lidar odometry's where the wheels drift)
+        lie within ``shortcut_radius`` (plus what drift explains) and
         whose graph path is ``loop_ratio`` times longer are matched grid against grid, seeded by the
         hints (the verdict with a guess: two locations a few metres apart share a fifth of their
         known area, too little for the strict one). The edge is made when the match fixes the pose
@@ -579,7 +582,10 @@ class GraphMaintainer:
             return 0
         per_metre = self.localizer.config.drift_per_metre
         vertices = self.graph.vertices
-        hints = np.array([vertex.pose_hint for vertex in vertices], dtype=np.float64)
+        # the hints that agree with the edges: the lidar odometry's under drifting wheels (a noisy
+        # generated ring: the wheels' 3-8 m and 15-20° off between locations met again after a loop,
+        # too far for the seeded match, the lidar's 0.1-0.2 m), the wheels' when exact
+        _, hints = hint_chain(self.graph)
         odometer = np.array([np.nan if vertex.odometer is None else vertex.odometer for vertex in vertices])
         added = 0
         for u in range(len(vertices)):
