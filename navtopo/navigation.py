@@ -195,6 +195,7 @@ class Navigator:
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
     _shut_since: tuple[tuple[int, int], float] | None = None  # the route's edge new obstacles shut, since when
+    _latest_new: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))  # this scan's, v_cur's frame
     passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
 
     def reset(self) -> None:
@@ -246,6 +247,7 @@ class Navigator:
         self._odometer, self._lost_since = Odometer(), None
         self._removed = {}
         self._shut_since = None
+        self._latest_new = np.zeros((0, 2))
         self._passages().clear()
 
     # -- the goal server ----------------------------------------------------------------------------
@@ -497,13 +499,16 @@ class Navigator:
         return True
 
     def _shut_ahead(self, obs: Observation, union: UnionGrid, pose: NDArray, route: list[int], points: NDArray) -> bool:
-        """Whether new obstacles shut an edge of the route ahead (``LocalPlanner.blocked_leg``) for
-        ``route_check_confirm`` s: then it is removed (counted, ``edges_shut_ahead``). A leg into
-        the goal's location's own goal point is no edge: the plan to it decides."""
+        """Whether this scan's new obstacles shut an edge of the route ahead (``LocalPlanner.
+        blocked_leg``), as a scan ``route_check_confirm`` s before did: then it is removed (counted,
+        ``edges_shut_ahead``). A leg into the goal's location's own goal point is no edge: the plan
+        to it decides."""
         confirm = self.config.route_check_confirm
         if confirm < 0:
             return False
-        leg = self.local.blocked_leg(union, pose, points, self._recent_obstacles())
+        # this scan's new obstacles only: remembered ones may have been placed by a pose since
+        # corrected (a wrong location for a moment put returns across an open corridor)
+        leg = self.local.blocked_leg(union, pose, points, self._latest_new)
         if leg is None or leg >= len(route) - 1:
             self._shut_since = None
             return False
@@ -614,6 +619,7 @@ class Navigator:
         points = obstacle_points(obs.points, self.maintainer.grid_config)
         new = self.local.new_obstacles(self.unions.get(vertex), pose, points)
         self.obstacles.update(pose, points, new, self.local.config.new_obstacle_range)
+        self._latest_new = new
 
     def _recent_obstacles(self) -> NDArray[np.float64]:
         return self.obstacles.points
