@@ -89,10 +89,10 @@ class NavigationConfig(BaseModel):
     passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
     route_check_confirm: float = Field(
         0.6,
-        description="s: new obstacles that shut an edge of the route ahead (LocalPlanner.blocked_leg, checked at every "
-        "plan) must still shut it this much later before the edge is removed and the route planned again round it, as "
-        "soon as seen rather than when the robot stands before them (a shut door; a return off by a few decimetres "
-        "that later rays pass through is forgotten meanwhile); negative: never checked",
+        description="s: a scan's new obstacles that shut an edge of the route ahead (LocalPlanner.blocked_leg, checked "
+        "at every plan) must shut it again in a scan this much later before the edge is removed and the route planned "
+        "again round it, as soon as seen rather than when the robot stands before them (a shut door); negative: never "
+        "checked",
     )
     recoveries: int = Field(
         3,
