@@ -21,6 +21,7 @@ from shapely.geometry import LineString
 from scenarios.route_space import route_space
 from scenarios.scenario import build_scenario
 from scenarios.schema import parse_spec
+from scenarios.slam_doors import is_door
 from scenarios.trials import make_trial
 from scenarios.world import rectangle
 
@@ -33,9 +34,9 @@ DOOR_CLEARANCE_M = 1.6
 END_CLEARANCE_M = 3.0
 
 
-def _door_centres(spec: dict) -> list[tuple[float, float]]:
-    """Centres of the spec's doors: its 0.3 m thick wall openings (``world.rooms`` entries)."""
-    return [tuple(r["center"]) for r in spec["world"].get("rooms", []) if abs(min(r["size"]) - BOX_THICKNESS_M) < 1e-6]
+def door_centres(spec: dict) -> list[tuple[float, float]]:
+    """Centres of the spec's doors (``world.rooms`` entries that ``slam_doors.is_door``)."""
+    return [tuple(r["center"]) for r in spec["world"].get("rooms", []) if is_door(r)]
 
 
 def stretch_candidates(spec: dict, corridor: int, leg: int) -> list[dict]:
@@ -49,7 +50,7 @@ def stretch_candidates(spec: dict, corridor: int, leg: int) -> list[dict]:
     along = (b - a) / length
     width = float(entry["width"])
     yaw = float(np.degrees(np.arctan2(along[1], along[0]))) + 90.0
-    doors = [np.asarray(d) for d in _door_centres(spec)]
+    doors = [np.asarray(d) for d in door_centres(spec)]
     side = np.array([-along[1], along[0]])
     near = [float((d - a) @ along) for d in doors if abs(float((d - a) @ side)) < width / 2 + 0.5]
     out = []

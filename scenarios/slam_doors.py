@@ -49,8 +49,8 @@ def slam_doors(spec: dict, rng: np.random.Generator, width_m: tuple[float, float
         if box is None:
             rooms.append(room)
             continue
-        long, short = max(box[2] - box[0], box[3] - box[1]), min(box[2] - box[0], box[3] - box[1])
-        if short <= DOOR_DEPTH_M and long <= DOOR_LENGTH_M:
+        short = min(box[2] - box[0], box[3] - box[1])
+        if is_door(room):
             door, record = _narrowed(box, int(rng.choice(sizes)), resolution)
             rooms.append(door)
             doors.append(record)
@@ -75,6 +75,16 @@ def _pixels(width_m: tuple[float, float], resolution: float) -> list[int]:
     if high < low:
         raise ValueError(f"no whole number of {resolution} m pixels lies in the door widths {width_m}")
     return list(range(low, high + 1))
+
+
+def is_door(room: dict) -> bool:
+    """Whether a ``world.rooms`` entry is a door: an axis-aligned free rectangle through one wall, at
+    most ``DOOR_DEPTH_M`` deep and ``DOOR_LENGTH_M`` long (``generators.ring_building``'s doors)."""
+    box = _axis_box(room)
+    if box is None:
+        return False
+    long, short = max(box[2] - box[0], box[3] - box[1]), min(box[2] - box[0], box[3] - box[1])
+    return short <= DOOR_DEPTH_M and long <= DOOR_LENGTH_M
 
 
 def _axis_box(room: dict) -> tuple[float, float, float, float] | None:
