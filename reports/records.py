@@ -41,6 +41,7 @@ from pydantic import (
 )
 
 from navkit.errors import BenchError
+from scenarios.schema import STOP_TOLERANCE_M
 
 MEMORY_PARTS = ("map", "localization", "derived", "model")
 
@@ -189,7 +190,7 @@ class Protocol(Record):
 
     initial_pose_error_xy: Number = 0.5
     initial_pose_error_yaw_deg: Number = 10.0
-    stop_tolerance: Number = 0.35
+    stop_tolerance: Number = STOP_TOLERANCE_M
     goal_tolerance: Number = 0.5
     goals: str = "map"
     initial_pose: str = "perturbed"

@@ -40,8 +40,8 @@ from reports.records import (
     TrialRecord,
 )
 from runners.results import disk_bytes
+from scenarios.schema import GOAL_TOLERANCE_M
 
-GOAL_TOLERANCE_M = 0.5
 TIMEOUT_FACTOR = 3.0
 TIMEOUT_EXTRA_S = 60.0
 STUCK_WINDOW_S = 30.0

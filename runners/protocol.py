@@ -10,8 +10,9 @@
   resume, and for every system. Systems without the flag get nothing. ``none`` (kidnapped): no
   system gets a pose; each localizes globally on its own map and confirms it over motion.
 * Stop tolerance. Every system that declares ``reached`` by its own estimate uses one tolerance
-  (``stop_tolerance``, 0.35 m); the runner's STOP rule (success) stays ``goal_tolerance`` (0.5 m)
-  on the true pose.
+  (``stop_tolerance``, 0.25 m as nav2's default, so a map up to 0.25 m off the world frame still
+  stops within the STOP rule); the runner's STOP rule (success) stays ``goal_tolerance`` (0.5 m) on
+  the true pose.
 * Goals. ``map`` (default): every system gets the goal as a point in the map frame, the frame of
   the mapping run's first pose; a system without a global frame converts it with its own estimate
   (NavTopo: its locations' poses relaxed over the graph), and bears that estimate's error.
@@ -38,7 +39,7 @@ from numpy.typing import NDArray
 from navkit import geometry as se2
 from runners.systems import GroundTruth, SystemContext, SystemEntry
 from scenarios import Scenario
-from scenarios.schema import GOAL_TOLERANCE_M, OdometryNoiseSpec
+from scenarios.schema import GOAL_TOLERANCE_M, STOP_TOLERANCE_M, OdometryNoiseSpec
 
 if TYPE_CHECKING:
     from runners.sim import Simulator
@@ -52,7 +53,7 @@ TEXT_FIELDS = ("goals", "initial_pose")
 class TrialProtocol:
     initial_pose_error_xy: float = 0.5  # m, uniform in [-e, e] along x and along y
     initial_pose_error_yaw_deg: float = 10.0  # degrees, uniform in [-e, e]
-    stop_tolerance: float = 0.35  # m, systems that say "reached" by their own estimate
+    stop_tolerance: float = STOP_TOLERANCE_M  # m, systems that say "reached" by their own estimate
     goal_tolerance: float = GOAL_TOLERANCE_M  # m, the runner's STOP rule on the true pose
     goals: str = "map"  # "map": map-frame points for all; "native": location-relative for graph systems
     initial_pose: str = "perturbed"  # INITIAL_POSES: "perturbed" (the start with the error) or "none" (kidnapped)

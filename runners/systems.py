@@ -38,7 +38,7 @@ from navkit.follower import FollowerConfig, PathFollower
 from navkit.grid_planning import plan_path
 from navkit.raster import GridFrame
 from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
-from scenarios.schema import RobotSpec, SensorSpec
+from scenarios.schema import STOP_TOLERANCE_M, RobotSpec, SensorSpec
 
 __all__ = [
     "Command",
@@ -73,7 +73,7 @@ class SystemContext:
 
     robot: RobotSpec
     sensor: SensorSpec
-    stop_tolerance: float = 0.35  # m: declare "reached" within this of the goal, by the own estimate
+    stop_tolerance: float = STOP_TOLERANCE_M  # m: declare "reached" within this of the goal, by the own estimate
     ground_truth: GroundTruth | None = None
 
 

@@ -281,7 +281,7 @@ def test_the_manifest_records_the_protocol_and_the_setting(tmp_path):
     assert manifest["protocol"] == {
         "initial_pose_error_xy": 0.3,
         "initial_pose_error_yaw_deg": 5.0,
-        "stop_tolerance": 0.35,
+        "stop_tolerance": 0.25,
         "goal_tolerance": 0.5,
         "goals": "map",
         "initial_pose": "perturbed",

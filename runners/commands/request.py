@@ -24,6 +24,7 @@ from pydantic import BaseModel, ConfigDict, PrivateAttr, model_validator
 
 from runners.commands.checks import check_executor_flags, check_number, once_each, systems_list
 from runners.commands.errors import Refused
+from scenarios.schema import GOAL_TOLERANCE_M, STOP_TOLERANCE_M
 
 if TYPE_CHECKING:
     from runners.protocol import TrialProtocol
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
 DEFAULT_SYSTEMS = "navtopo,metric_grid,oracle"
 DEFAULT_TRIAL_TIMEOUT_S = 3600.0  # runners.run.DEFAULT_TRIAL_WALL_S
 DEFAULT_INITIAL_POSE_ERROR = "0.5,10"  # XY_M,YAW_DEG
-DEFAULT_STOP_TOLERANCE = 0.35  # m
+DEFAULT_STOP_TOLERANCE = STOP_TOLERANCE_M  # m
 DEFAULT_GOALS = "map"
 DEFAULT_INITIAL_POSE = "perturbed"
 GOALS = ("map", "native")
@@ -77,7 +78,6 @@ class RunRequest(BaseModel):
     @model_validator(mode="after")
     def _apply_rules(self) -> RunRequest:
         """Every rule in the command's order; the derived values filled as they are checked."""
-        from runners.metrics import GOAL_TOLERANCE_M
         from runners.protocol import INITIAL_POSES, TrialProtocol
 
         check_executor_flags(self.executor, self.ray_address, self.workers)
