@@ -676,6 +676,8 @@ class Navigator:
         startup = self.startup
         alive = len(startup.hypotheses)
         state = f"{alive} hypotheses alive ({startup.seen} found), {startup.looks} looks, {startup.odometer:.1f} m driven"
+        if startup.prior_refused:
+            state += f", {startup.prior_refused} finds too far from the given pose"
         best = startup.best()
         if best is not None:
             state += f"; best: location {best.vertex}, verified at {best.support} looks in {len(best.places)} locations"

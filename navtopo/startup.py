@@ -176,6 +176,15 @@ class StartupConfig(BaseModel):
         "score 0.4): with the guess's verdict (90 %, 0.1) a location seen through a thin wall from its other side "
         "agreed at 0.3-0.6 m off (office02, both settings: the two faces of the wall paired as one)",
     )
+    prior_gate: float = Field(
+        2.0,
+        ge=0,
+        description="m: with a given initial pose, a place found later is made a hypothesis only this far (plus "
+        "prior_gate_per_m of the metres driven) from the pose carried there by odometry: the given pose's error "
+        "(0.71 m at most by the protocol) and the locations' map-pose drift; look-alikes farther off are no rivals, "
+        "as an initial pose confines AMCL's particles (0: no gate)",
+    )
+    prior_gate_per_m: float = Field(0.1, ge=0, description="m the gate grows per metre driven (the odometry's drift)")
 
 
 @dataclass
@@ -337,6 +346,7 @@ class Startup:
         self._history_at = -np.inf  # the odometer at the last look kept
         self.far_dropped = 0  # looks that counted against a hypothesis by the far evidence alone
         self.far_refused = 0  # verified candidates not made hypotheses by it
+        self.prior_refused = 0  # verified candidates not made hypotheses: too far from the given pose (``prior_gate``)
 
     def set_prior(self, pose: NDArray) -> None:
         """A given initial pose (3,, map frame; the protocol's ``perturbed`` start): tried at each look
@@ -358,7 +368,8 @@ class Startup:
             return None
         if self._odom.metres > self.config.prior_distance or self._first_odom is None:
             return None
-        prior = compose(self._prior, between(self._first_odom, obs.odom))
+        prior = self._carried_prior(obs.odom)
+        assert prior is not None
         query, _ = self._perceive(obs)
         localizer, config = self.maintainer.localizer, self.config
         nearest = np.argsort(np.hypot(*(self.map_poses[:, :2] - prior[:2]).T), kind="stable")[: config.prior_locations]
@@ -381,6 +392,23 @@ class Startup:
                 tracker, support=1, odometer_start=self._odom.metres, places={vertex}, alone_since=self._odom.metres
             )
         return None
+
+    def _carried_prior(self, odom: NDArray) -> NDArray[np.float64] | None:
+        """The given initial pose carried by odometry to the robot now (map frame), or None."""
+        if self._prior is None or self._first_odom is None:
+            return None
+        return compose(self._prior, between(self._first_odom, odom))
+
+    def _near_prior(self, vertex: int, pose: NDArray, odom: NDArray) -> bool:
+        """Could the robot be at ``pose`` in ``vertex`` by the given initial pose? True without one
+        (the kidnapped protocol) or without map poses; else within ``prior_gate`` (grown by
+        ``prior_gate_per_m`` a metre driven) of the prior carried by odometry."""
+        prior = self._carried_prior(odom)
+        if prior is None or self.map_poses is None or not self.config.prior_gate:
+            return True
+        placed = compose(self.map_poses[vertex], pose)
+        gate = self.config.prior_gate + self.config.prior_gate_per_m * self._odom.metres
+        return float(np.hypot(*(placed[:2] - prior[:2]))) <= gate
 
     def _tracker(self, vertex: int, pose: NDArray, odom: NDArray) -> GraphMaintainer:
         m = self.maintainer
@@ -474,6 +502,9 @@ class Startup:
         top_k = len(m.graph) if check_all else self.config.top_k
         found = m.localizer.localize(query, descriptor, top_k=top_k)
         new = [loc for loc in found if not any(self._same_place(h, loc.vertex, loc.pose) for h in self.hypotheses)]
+        near = [loc for loc in new if self._near_prior(loc.vertex, loc.pose, obs.odom)]
+        self.prior_refused += len(new) - len(near)
+        new = near
         if self.config.far_evidence and new and len(self.hypotheses) + len(new) > 1:
             # a place the far evidence counts against at this look is not made a hypothesis (it
             # would come back at every look and keep a rival alive)

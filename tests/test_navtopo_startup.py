@@ -304,3 +304,24 @@ def test_a_given_pose_farther_off_than_the_search_commits_nothing_from_it(twin_r
     for k in range(8):  # the first looks, still inside room A
         assert startup.step(Observation(0.2 * k, scans[k], se2.between(poses[0], poses[k]))) is None
     assert not startup.from_given_pose
+
+
+def test_a_given_pose_keeps_look_alikes_far_from_it_from_becoming_rivals(twin_rooms):
+    """A given pose 1.8 m off (beyond ``prior_search``: not committed from it at once) still rules out
+    room B, 8 m away (``prior_gate``): its finds are refused, room A is the only hypothesis from the
+    first look on, and the start-up commits to it once the robot is out in the corridor."""
+    graph, places, poses, scans = twin_rooms
+    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
+    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
+    startup = Startup(maintainer, describe, StartupConfig())
+    startup.map_poses = places
+    startup.set_prior(poses[0] + np.array([1.8, 0.0, 0.0]))
+    committed = None
+    for k, (pose, scan) in enumerate(zip(poses, scans, strict=True)):
+        committed = startup.step(Observation(0.2 * k, scan, se2.between(poses[0], pose)))
+        assert len(startup.hypotheses) <= 1, "a look-alike 8 m from the given pose became a rival"
+        if committed is not None:
+            break
+    assert committed is not None and not startup.from_given_pose and startup.prior_refused > 0
+    where = se2.compose(places[committed.vertex], committed.pose)
+    assert np.hypot(*(where[:2] - poses[k][:2])) < 0.3
