@@ -92,6 +92,14 @@ class MappingConfig(BaseModel):
         description="mapping: before making a location, stay in the current one if its scan still matches "
         "within this times max_edge_length (revisits along another line do not map a place twice)",
     )
+    shuttle_guard: float = Field(
+        1.0,
+        ge=0,
+        description="navigating: after a move from one location into another, no move along an edge back into the "
+        "first before the robot has driven this far (m); the location left is still taken along the route. A robot "
+        "between two locations, the new one not verifying it where it stands, was moved back and forth at every "
+        "update, each move a plan in another frame, and turned on the spot until stuck or out of time",
+    )
     seen_only: bool = Field(
         True,
         description="mapping: a location holds the robot only on a cell its scan saw; a room entered through a "
@@ -267,6 +275,7 @@ class GraphMaintainer:
         self._odom_at_update: NDArray[np.float64] | None = None
         self._odometer_verified = 0.0  # the odometer when the pose was last verified by scan matching
         self._odometer_at_vertex: dict[int, float] = {}
+        self._left: tuple[int, float] | None = None  # the location last moved out of, and the odometer then
         self._edges: dict[tuple[int, int], EdgeEstimate] = {}
         self._odometer_at_measure: dict[tuple[int, int], float] = {}
         self._odometer_at_closure_check = -np.inf
@@ -309,6 +318,7 @@ class GraphMaintainer:
         self._odom.restart_from(None)
         self._odom_at_update = None
         self.last_verified = False
+        self._left = None
 
     def update(
         self,
@@ -453,7 +463,11 @@ class GraphMaintainer:
         here = self.pose_in_current
         distance_to_current = float(np.hypot(here[0], here[1]))
         options = []
+        left = self._left if self._left is not None and not self.mapping else None
+        shuttle = left is not None and self._odom.metres - left[1] < self.config.shuttle_guard
         for vertex, pose_uv in self.graph.neighbours(self.current):
+            if shuttle and left is not None and vertex == left[0]:
+                continue  # just left it: the robot stays here by odometry a little longer
             distance = float(np.hypot(*(pose_uv[:2] - here[:2])))
             if distance < distance_to_current or distance < self.config.max_edge_length:
                 options.append((distance, vertex, pose_uv))
@@ -849,6 +863,8 @@ class GraphMaintainer:
     # -- graph changes -----------------------------------------------------------------------------
 
     def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> None:
+        if self.current is not None and vertex != self.current:
+            self._left = (self.current, self._odom.metres)
         self._odometer_verified = self._odom.metres
         self.current = vertex
         self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()

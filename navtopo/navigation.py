@@ -196,6 +196,7 @@ class Navigator:
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
     _shut_since: tuple[tuple[int, int], float] | None = None  # the route's edge new obstacles shut, since when
     _latest_new: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))  # this scan's, v_cur's frame
+    _aimed: tuple[tuple[int, tuple[int, ...]], int] | None = None  # ((v_cur, route), route points the lookahead passed)
     passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
 
     def reset(self) -> None:
@@ -248,6 +249,7 @@ class Navigator:
         self._removed = {}
         self._shut_since = None
         self._latest_new = np.zeros((0, 2))
+        self._aimed = None
         self._passages().clear()
 
     # -- the goal server ----------------------------------------------------------------------------
@@ -458,11 +460,18 @@ class Navigator:
             union = self.unions.get(vertex)
             if not tentative and self._shut_ahead(obs, union, pose, route, points):
                 continue  # the edge is gone: the route again, round it
-            target = self.local.target(union, pose, points, self._recent_obstacles())
+            along = (vertex, tuple(route))  # route points a cut passed by stay passed along this route
+            skip = self._aimed[1] if self._aimed is not None and self._aimed[0] == along else 0
+            target, kept = self.local.aim(union, pose, points, self._recent_obstacles(), skip)
+            self._aimed = (along, kept)
             planned = self.local.plan(union, pose, target, self._recent_obstacles())
             if planned is None and not _same_point(target, points[0]):  # a shorter reach: the next vertex
-                target = points[0]
+                target, self._aimed, kept = points[0], None, 0
                 planned = self.local.plan(union, pose, target, self._recent_obstacles())
+            if len(route) == 2 and not _same_point(target, goal_point[0]):
+                target, planned = self._goal_straight(union, pose, target, planned, points[kept:])
+                if _same_point(target, goal_point[0]):
+                    self._aimed = (along, len(points) - 1)  # the goal location's position passed
             self.counters["plans"] += 1
             if planned is None and not tentative and not self.goal.held:
                 # a goal in a room no location saw into: planned in the robot's own scan, which shows
@@ -497,6 +506,23 @@ class Navigator:
         if not tentative:
             self._describe(self._following(route))
         return True
+
+    def _goal_straight(
+        self, union: UnionGrid, pose: NDArray, target: NDArray, planned: PlannedPath | None, rest: NDArray
+    ) -> tuple[NDArray[np.float64], PlannedPath | None]:
+        """One edge from the goal's location: the local path to the goal itself where it is no longer
+        than the path to ``target`` and on along the route (``rest``: its points after the target, the
+        goal last). The goal is reached from this location by the composed pose; by the goal
+        location's position first, a goal 6.8 m from it (a room that location saw into) sent the
+        robot from beside the goal back to that position and forth again until it was stuck."""
+        goal = rest[-1]
+        direct = self.local.plan(union, pose, goal, self._recent_obstacles())
+        if direct is None:
+            return target, planned
+        onward = np.vstack([target[None, :2], rest])
+        if planned is not None and direct.length > planned.length + float(np.hypot(*np.diff(onward, axis=0).T).sum()):
+            return target, planned
+        return goal, direct
 
     def _shut_ahead(self, obs: Observation, union: UnionGrid, pose: NDArray, route: list[int], points: NDArray) -> bool:
         """Whether this scan's new obstacles shut an edge of the route ahead (``LocalPlanner.

@@ -424,8 +424,21 @@ class LocalPlanner:
         """Where the local path goes (v_cur's frame). ``route`` (K, 2): the global path's points
         after the robot: the next vertices' positions and, last, the goal. ``blocked_xy``: new
         obstacles (a shut door the grids show open), where the route leaves the free space too."""
+        return self.aim(union, start, route, blocked_xy)[0]
+
+    def aim(
+        self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None = None, skip: int = 0
+    ) -> tuple[NDArray[np.float64], int]:
+        """``target``, looking from the route's point ``skip`` on, and the index of the first route
+        point not yet passed: the points before the target (cut, ``target_cut``, or on the way to
+        it) stay passed for the next plans along the same route (``skip``). Without that a target
+        far along the route, planned to by another corridor, was followed by one at a passed route
+        point behind the robot (the straight way back to it crossed a wall from the new spot), and
+        the robot went to and fro between the two until the time ran out (a shopping mall, noisy)."""
+        skip = min(max(skip, 0), len(route) - 1)
+        route = route[skip:]
         if self.config.smoothing == "none" or len(route) == 1:
-            return route[0]
+            return route[0], skip
         # lookahead: the farthest point of the polyline robot -> route in the union grid's known free
         # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m),
         # before the polyline first leaves that space beyond there: a route that comes back near
@@ -433,8 +446,9 @@ class LocalPlanner:
         reach = self.wide + self.config.target_clearance
         passable = _passable(union, "known", reach, blocked_xy=blocked_xy)
         if self.config.target_cut:
-            route = route[self._farthest_in_sight(union, passable, start, route) :]
-        samples = densify(np.vstack([start[None, :2], route]), self.config.target_step)
+            cut = self._farthest_in_sight(union, passable, start, route)
+            route, skip = route[cut:], skip + cut
+        samples, legs = densify_legs(np.vstack([start[None, :2], route]), self.config.target_step)
         free = union.values_at(samples, passable, False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
         first = int(np.argmax(beyond_next)) if beyond_next.any() else len(samples)
@@ -448,8 +462,23 @@ class LocalPlanner:
         back = np.flatnonzero(distance < np.maximum.accumulate(distance) - self.config.target_turn_back)
         if len(back):
             end = min(end, int(back[0]))
+        if end <= np.count_nonzero(legs == 0) - 1 and self._wall_between(union, start[:2], route[0]):
+            # a wall stands between the robot and the next route point (the robot beside a wall
+            # whose end the way goes round): a point on the straight way short of the wall is a
+            # dead end, and from there the next plan goes round again, and so to and fro (a
+            # shopping mall's aisle, noisy: 80 s between two such targets until the time ran out)
+            return route[0], skip
         candidates = np.flatnonzero(free[:end] & beyond_next[:end])
-        return samples[candidates[-1]] if len(candidates) else route[0]
+        if not len(candidates):
+            return route[0], skip
+        # a target on leg k (from route point k - 1 to k) has passed the route points before it
+        return samples[candidates[-1]], skip + int(legs[candidates[-1]])
+
+    @staticmethod
+    def _wall_between(union: UnionGrid, a: NDArray, b: NDArray) -> bool:
+        """Does the straight way from ``a`` to ``b`` (2,) cross a mapped wall cell of the union grid?"""
+        way = densify(np.vstack([a[None], b[None]]), union.frame.resolution / 2)
+        return bool((union.values_at(way, union.cells, UNKNOWN) == OCCUPIED).any())
 
     def _farthest_in_sight(self, union: UnionGrid, passable: NDArray[np.bool_], start: NDArray, route: NDArray) -> int:
         """The index of the last route point (K, 2) the straight way from ``start`` reaches through
@@ -481,7 +510,8 @@ class LocalPlanner:
 
     def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
-        if there is none, or only one through unknown cells far round (``unknown_detour``).
+        if there is none, or only ones through unknown cells far round (``unknown_detour``: such a way
+        found on one level is passed over for the next).
 
         The levels are tried in order (``navkit.grid_planning.plan_path`` on each): a level whose
         snapped start and goal lie in different parts of its passable cells (4-connected, as the
@@ -519,15 +549,18 @@ class LocalPlanner:
                 hold_m=self.tight,
                 search=self._search,
             )
-            if found is not None:
-                planned = PlannedPath(found.points, level)
-                break
+            if found is None:
+                continue
+            planned = PlannedPath(found.points, level)
+            if kind == "unknown" and planned.length > self.config.unknown_detour * float(np.hypot(*(target - start[:2]))) + 1.0:
+                # far round through cells no location saw: a guess; a tighter level may pass the
+                # door beside the robot (a wide level went round through the walls between rooms,
+                # drawn unknown, and the goal beyond a door 1.9 m away was given up)
+                planned = None
+                continue
+            break
         if planned is None:
             return None
-        if self.levels[planned.level][0] == "unknown":
-            straight = float(np.hypot(*(target - start[:2])))
-            if planned.length > self.config.unknown_detour * straight + 1.0:
-                return None
         points = union.from_grid_axes(planned.points)
         points[0] = start[:2]  # exact, not turned there and back
         if fits:

@@ -477,3 +477,37 @@ def test_a_look_alike_closure_in_the_map_is_undone_when_the_right_place_contradi
     maintainer.graph.add_edge(last, 0, right)
     assert not maintainer._edge_acceptable(last, 1, right, covariance)
     assert maintainer.counters.undone_closures == 1
+
+
+def test_a_robot_that_just_moved_into_a_location_is_not_moved_straight_back():
+    """Navigating, between two locations that both verify the robot (here every match does): once
+    moved from location 0 into 1, no move along the edge back into 0 before the robot has driven
+    ``shuttle_guard`` metres (moved back and forth at every update, each move a plan in another
+    frame, a robot turned on the spot until it was stuck); after that, as before."""
+    from types import SimpleNamespace
+
+    from navkit.scan_grid import GridConfig, grid_from_points
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    grid_config = GridConfig()
+    graph = TopologicalGraph(4)
+    grid = CroppedGrid.from_grid(grid_from_points(np.array([[3.0, 2.0, 0.5], [3.0, -2.0, 0.5]], np.float32), grid_config))
+    for k in range(2):
+        graph.add_vertex(grid, np.ones(4, np.float32), np.array([3.0 * k, 0.0, 0.0]), float(k))
+    graph.add_edge(0, 1, np.array([3.0, 0.0, 0.0]))
+    config = MappingConfig()
+    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
+    maintainer = GraphMaintainer(graph, describe, grid_config, MatchingConfig(), config, LocalizationConfig(), False)
+    maintainer.localizer.verify = lambda query, vertex, guess, jump: SimpleNamespace(  # every match verifies
+        pose=np.asarray(guess, float), result=SimpleNamespace(covariance=None, overlap=1.0)
+    )
+    maintainer.start_at(0, np.array([1.6, 0.0, 0.0]), np.zeros(3))  # nearer to 1's position than to 0's
+    assert maintainer._move_along_edge(None) and maintainer.current == 1
+    assert not maintainer._move_along_edge(None) and maintainer.current == 1  # not straight back
+    maintainer.integrate(np.array([config.shuttle_guard + 0.1, 0.0, 0.0]))  # driven on
+    maintainer.pose_in_current = np.array([-1.6, 0.0, 0.0])
+    assert maintainer._move_along_edge(None) and maintainer.current == 0

@@ -400,6 +400,65 @@ def test_a_way_found_only_through_unknown_space_far_round_is_refused():
     assert step is not None and planner.levels[step.level][0] == "unknown"  # short: kept
 
 
+def test_a_far_round_guess_on_a_wide_level_gives_way_to_a_door_on_a_tighter_one():
+    """A goal in a room no location saw into, 2 m beyond a 0.7 m door beside the robot, and a wide
+    opening 5 m along the corridor. Unknown cells as free with the margin, the door is too narrow and
+    the way in goes round by the opening (a guess through unseen walls, refused as a detour); the
+    next level, without the margin, goes through the door: that path is planned, not none."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+    centre = GRID.size // 2
+    to = lambda v: centre + int(round(v / GRID.resolution))  # noqa: E731
+    grid[to(-1) : to(1), to(-6) : to(6)] = FREE  # a 2 m wide corridor along x
+    grid[to(-1.2) : to(-1), to(-6) : to(6)] = OCCUPIED
+    grid[to(1) : to(1.2), to(-4) : to(6)] = OCCUPIED  # its upper wall, open at x -6..-4
+    grid[to(1) : to(1.2), to(0) : to(0.7)] = FREE  # a door at x 0..0.7
+    grid[to(4) : to(4.2), to(-6) : to(6)] = OCCUPIED  # the room's far wall, seen through the door
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0)
+    config = PlanningConfig()
+    planner = LocalPlanner(UnionGrids(graph, GRID, config), 0.3, config)
+    goal = np.array([0.35, 3.2])
+    planned = planner.plan(union, np.array([0.35, 0.0, 0.0]), goal)
+    assert planned is not None, "the door beside the robot was given up with the far-round guess"
+    kind, radius, _ = planner.levels[planned.level]
+    assert kind == "unknown" and radius < planner.wide  # the wide level's way was the detour
+    assert planned.length < config.unknown_detour * 3.2 + 1.0 and planned.points[:, 0].min() > -0.5  # through the door
+
+
+def test_route_points_the_lookahead_passed_stay_passed_along_the_route():
+    """Two corridors joined at both ends by gaps in the wall between them; the route runs along the
+    upper one, the goal lies in the lower one. From the lower corridor's west end the whole route
+    lies in free space: the target is the goal, and every route point before it is passed. From the
+    middle of the lower corridor (on the way to the goal) the straight way back to the first route
+    point crosses the wall: looked at afresh, the target would be that point behind the robot (a
+    dead end the robot went to and fro from); with the points passed, it stays the goal."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+    centre = GRID.size // 2
+    to = lambda v: centre + int(round(v / GRID.resolution))  # noqa: E731
+    grid[to(-1.2) : to(4.2), to(-2.2) : to(10.2)] = OCCUPIED
+    grid[to(-1) : to(1), to(-2) : to(10)] = FREE  # the lower corridor
+    grid[to(2) : to(4), to(-2) : to(10)] = FREE  # the upper one
+    grid[to(1) : to(2), to(-2) : to(0)] = FREE  # the gaps at both ends
+    grid[to(1) : to(2), to(8) : to(10)] = FREE
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0, align=False)
+    config = PlanningConfig()
+    planner = LocalPlanner(UnionGrids(graph, GRID, config), 0.3, config)
+    route = np.array([[-1.0, 3.0], [9.0, 3.0], [9.0, 0.0]])  # two locations' positions, then the goal
+    target, passed = planner.aim(union, np.array([-1.0, 0.0, 0.0]), route)
+    assert np.allclose(target, route[-1]) and passed == 2
+    middle = np.array([4.0, 0.0, 0.0])
+    afresh, _ = planner.aim(union, middle, route)
+    assert np.allclose(afresh, route[0])  # behind the robot, across the wall
+    onward, still = planner.aim(union, middle, route, skip=passed)
+    assert np.allclose(onward, route[-1]) and still == 2
+    assert planner.plan(union, middle, onward).length < 5.2  # along the lower corridor
+
+
 def test_an_edge_ahead_shut_by_new_obstacles_is_told_before_the_robot_gets_there():
     """A corridor the location saw whole, then a door shut across it 4 m ahead: the leg of the route
     through it is named (the first leg, or the second where a route point lies before the door), while
