@@ -478,10 +478,12 @@ class Navigator:
                 # the room through its door once the robot stands before it
                 target = goal_point[0]
                 planned = self._plan_in_scan(obs, pose, target)
-            if planned is not None or len(route) == 1 or tentative:
+            if planned is not None or tentative:
                 break
             if self._recover(union, pose, target):
                 continue  # only the remembered obstacles stopped it: forgotten, planned again
+            if len(route) == 1:
+                break  # in the goal's location: no edge to remove
             # no way to the next vertex in the union grid (a closed door, an obstacle the map lacks)
             self.counters["plans_failed"] += 1
             self.counters["edges_removed"] += 1

@@ -577,3 +577,40 @@ def test_a_start_up_finds_the_place_that_place_recognition_ranks_last(tiny):
     assert found.checks >= 2  # at the first look and before the commitment
     blind = _startup(graph, describe, top_k=1, check_all=False, confirm_distance_one_place=4.0)
     assert drive(blind) == (None, None) and blind.seen == 0  # the top_k alone never proposes it
+
+
+@pytest.mark.parametrize("recoveries", [0, 3])
+def test_a_goal_shut_off_by_remembered_obstacles_in_its_own_location_is_recovered(tiny, tiny_graph, recoveries):
+    """In the goal's location (no edge left to remove), a local plan that only the remembered
+    obstacles stop forgets them and plans again, as on the way there (and as the baseline's nav2
+    recovery does): a passage the scan once showed too narrow ended the trial `no_path` beside the
+    goal. Without recoveries it still ends so."""
+    from runners.mapping import context_for
+
+    run, _ = tiny_graph
+    entry = get_system("navtopo")
+    config = entry.config_model.model_validate(
+        {"planning": {"new_obstacle_range": 1.0}, "navigation": {"recoveries": recoveries}}
+    )
+    sim = Simulator(tiny, seed=tiny.spec.seed)
+    system = entry.load(run.map_dir("navtopo"), config, context_for(entry, tiny, sim))
+    nav = system.navigator
+    start = tiny.trials[0].start
+    sim.reset(start)
+    system.reset()
+    map_from_world = se2.inverse(tiny.route_start)
+    system.set_initial_pose(se2.compose(map_from_world, start))
+    ahead = se2.transform_points(se2.compose(map_from_world, start), np.array([[2.5, 0.0]]))[0]
+    system.set_goal(ahead)  # 2.5 m ahead, in the start's location
+    system.step(sim.observe())
+    assert nav.localized and nav.goal is not None and nav._route == [nav.goal.vertex]
+    goal_here = nav._goal_in(nav.maintainer.current)
+    angles = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    nav.obstacles.mark(goal_here + 0.8 * np.stack([np.cos(angles), np.sin(angles)], 1))  # a phantom ring
+    nav._path_vertex = None  # plan again now
+    system.step(sim.observe())
+    if recoveries:
+        assert nav.status.state.value == "active" and nav.follower.has_path and nav.counters["recoveries"] == 1
+        assert np.hypot(*(nav.follower.path[-1] - goal_here)) < 0.3
+    else:
+        assert nav.status.reason == "no_path"
