@@ -460,18 +460,7 @@ class Navigator:
             union = self.unions.get(vertex)
             if not tentative and self._shut_ahead(obs, union, pose, route, points):
                 continue  # the edge is gone: the route again, round it
-            along = (vertex, tuple(route))  # route points a cut passed by stay passed along this route
-            skip = self._aimed[1] if self._aimed is not None and self._aimed[0] == along else 0
-            target, kept = self.local.aim(union, pose, points, self._recent_obstacles(), skip)
-            self._aimed = (along, kept)
-            planned = self.local.plan(union, pose, target, self._recent_obstacles())
-            if planned is None and not _same_point(target, points[0]):  # a shorter reach: the next vertex
-                target, self._aimed, kept = points[0], None, 0
-                planned = self.local.plan(union, pose, target, self._recent_obstacles())
-            if len(route) == 2 and not _same_point(target, goal_point[0]):
-                target, planned = self._goal_straight(union, pose, target, planned, points[kept:])
-                if _same_point(target, goal_point[0]):
-                    self._aimed = (along, len(points) - 1)  # the goal location's position passed
+            target, planned = self._local_path(union, pose, vertex, route, points)
             self.counters["plans"] += 1
             if planned is None and not tentative and not self.goal.held:
                 # a goal in a room no location saw into: planned in the robot's own scan, which shows
@@ -508,6 +497,24 @@ class Navigator:
         if not tentative:
             self._describe(self._following(route))
         return True
+
+    def _local_path(
+        self, union: UnionGrid, pose: NDArray, vertex: int, route: list[int], points: NDArray
+    ) -> tuple[NDArray[np.float64], PlannedPath | None]:
+        """The local target along the route's ``points`` (the goal last) and the path to it, or None."""
+        along = (vertex, tuple(route))  # route points a cut passed by stay passed along this route
+        skip = self._aimed[1] if self._aimed is not None and self._aimed[0] == along else 0
+        target, kept = self.local.aim(union, pose, points, self._recent_obstacles(), skip)
+        self._aimed = (along, kept)
+        planned = self.local.plan(union, pose, target, self._recent_obstacles())
+        if planned is None and not _same_point(target, points[0]):  # a shorter reach: the next vertex
+            target, self._aimed, kept = points[0], None, 0
+            planned = self.local.plan(union, pose, target, self._recent_obstacles())
+        if len(route) == 2 and not _same_point(target, points[-1]):
+            target, planned = self._goal_straight(union, pose, target, planned, points[kept:])
+            if _same_point(target, points[-1]):
+                self._aimed = (along, len(points) - 1)  # the goal location's position passed
+        return target, planned
 
     def _goal_straight(
         self, union: UnionGrid, pose: NDArray, target: NDArray, planned: PlannedPath | None, rest: NDArray
