@@ -493,7 +493,11 @@ class Navigator:
         self._goal_short = self._target_is_goal and not _same_point(planned.points[-1], target)
         self.follower.set_path(planned.points)
         kind, radius, medial = self.local.levels[planned.level]
-        self._passages().set_path(self.follower.path, None if medial is None else union.passable_at(kind, radius))
+        # the narrow part checked against the scan: a medial path's stretch off the level's own cells,
+        # any other's nearer the walls than the first level's margin (a door passed diagonally at the
+        # radius, the pose 0.1-0.2 m off under noise, met its jamb), as the baseline's every path
+        roomy = radius if medial is not None else (self.local.wide if radius < self.local.wide else None)
+        self._passages().set_path(self.follower.path, None if roomy is None else union.passable_at(kind, roomy))
         if not tentative:
             self._describe(self._following(route))
         return True
