@@ -3,6 +3,12 @@ figure, every number read from the run's own files (``summary.json``, ``mapping/
 ``trials.jsonl``, ``manifest.json``), none typed by hand.
 
     .venv/bin/python benchmarks/summarize_runs.py RUN_DIR [RUN_DIR ...]
+    .venv/bin/python benchmarks/summarize_runs.py --by-scene RUN_DIR [RUN_DIR ...]
+
+``--by-scene``: one compact table per setting instead, a row per scene and a column per system
+(success, mean efficiency over the successes, failures by reason and stage), and a row of totals;
+where a scene's system is in several runs (a system's trials made again on a run's maps with
+``--maps-from``), the newest run's trials count.
 """
 
 from __future__ import annotations
@@ -25,10 +31,58 @@ def _read(path: Path) -> Any:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
+def _scene_cell(records: list[dict[str, Any]]) -> str:
+    """success/trials, mean efficiency over the successes, failures by reason (stage)."""
+    good = [r for r in records if r.get("success")]
+    failures: dict[str, int] = {}
+    for r in records:
+        if not r.get("success"):
+            key = f"{r.get('reason')} ({r.get('failure_stage')})"
+            failures[key] = failures.get(key, 0) + 1
+    cell = f"{len(good)}/{len(records)}"
+    if good:
+        cell += f", {sum(float(r['efficiency']) for r in good) / len(good):.3f}"
+    return cell + "".join(f", {k}" + (f" x{n}" if n > 1 else "") for k, n in failures.items())
+
+
+def by_scene(run_dirs: list[Path]) -> None:
+    """``--by-scene``: a table per setting, a row per scene, a column per system (the newest run's trials)."""
+    latest: dict[tuple[str, str, str], tuple[str, list[dict[str, Any]]]] = {}
+    order: list[tuple[str, str]] = []
+    for run in run_dirs:
+        manifest = _read(run / "manifest.json")
+        scene, setting, created = manifest.get("scenario", {}).get("name"), manifest.get("setting"), manifest.get("created", "")
+        if (scene, setting) not in order:
+            order.append((scene, setting))
+        path = run / "trials.jsonl"
+        trials = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
+        for system in sorted({r["system"] for r in trials}):
+            key = (scene, setting, system)
+            if key not in latest or created > latest[key][0]:
+                latest[key] = (created, [r for r in trials if r["system"] == system])
+    systems = sorted({k[2] for k in latest}, key=lambda name: (name != "navtopo", name != "metric_grid", name))
+    for setting in dict.fromkeys(s for _, s in order):
+        print(f"\n| scene ({setting}) | " + " | ".join(systems) + " |\n|---|" + "---|" * len(systems))
+        totals = {system: [0, 0] for system in systems}
+        for scene, _ in [o for o in order if o[1] == setting]:
+            cells = []
+            for system in systems:
+                records = latest.get((scene, setting, system), ("", []))[1]
+                totals[system][0] += sum(bool(r.get("success")) for r in records)
+                totals[system][1] += len(records)
+                cells.append(_scene_cell(records) if records else "–")
+            print(f"| {scene} | " + " | ".join(cells) + " |")
+        print("| **all** | " + " | ".join(f"**{ok}/{n}**" for ok, n in totals.values()) + " |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dirs", type=Path, nargs="+")
+    parser.add_argument("--by-scene", action="store_true", help="a table per setting: a row per scene, a column per system")
     args = parser.parse_args()
+    if args.by_scene:
+        by_scene(args.run_dirs)
+        return
     rows_nav, rows_mem, rows_map, rows_loc, rows_runs = [], [], [], [], []
     for run in args.run_dirs:
         manifest = _read(run / "manifest.json")
