@@ -273,16 +273,23 @@ def test_identical_rooms_are_told_apart_in_the_corridor_never_guessed_from_insid
     assert committed_at is not None, "the corridor tells the rooms apart"
 
 
+def _given_a_pose(graph: TopologicalGraph, places: np.ndarray) -> Startup:
+    """A start-up on the twin rooms' map with the locations' map poses, where place recognition tells
+    nothing apart; the test gives the pose (``set_prior``)."""
+    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
+    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
+    startup = Startup(maintainer, describe, StartupConfig())
+    startup.map_poses = places
+    return startup
+
+
 @pytest.mark.parametrize("error", [(0.4, -0.3, 8.0), (-0.5, 0.5, -10.0)])
 def test_a_given_start_pose_commits_at_the_first_look_to_the_right_one_of_twin_rooms(twin_rooms, error):
     """The protocol's ``perturbed`` start: the true pose off by up to 0.5 m and 10°. Inside room A,
     whose twin verifies as well without a pose, the given pose settles it at once: committed at the
     first look, to room A, within 0.1 m of the truth (the match's, not the given error)."""
     graph, places, poses, scans = twin_rooms
-    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
-    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
-    startup = Startup(maintainer, describe, StartupConfig())
-    startup.map_poses = places
+    startup = _given_a_pose(graph, places)
     dx, dy, dyaw = error
     startup.set_prior(poses[0] + np.array([dx, dy, np.radians(dyaw)]))
     committed = startup.step(Observation(0.0, scans[0], np.zeros(3)))
@@ -296,10 +303,7 @@ def test_a_given_pose_farther_off_than_the_search_commits_nothing_from_it(twin_r
     """A given pose 2.5 m off (beyond ``prior_search``): no match near it puts the robot there, so
     the start-up goes on as without one (no commitment from inside a room with a twin)."""
     graph, places, poses, scans = twin_rooms
-    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
-    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
-    startup = Startup(maintainer, describe, StartupConfig())
-    startup.map_poses = places
+    startup = _given_a_pose(graph, places)
     startup.set_prior(poses[0] + np.array([0.0, 2.5, 0.0]))
     for k in range(8):  # the first looks, still inside room A
         assert startup.step(Observation(0.2 * k, scans[k], se2.between(poses[0], poses[k]))) is None
@@ -311,10 +315,7 @@ def test_a_given_pose_keeps_look_alikes_far_from_it_from_becoming_rivals(twin_ro
     room B, 8 m away (``prior_gate``): its finds are refused, room A is the only hypothesis from the
     first look on, and the start-up commits to it once the robot is out in the corridor."""
     graph, places, poses, scans = twin_rooms
-    describe = lambda points: np.ones(4, np.float32)  # noqa: E731
-    maintainer = GraphMaintainer(graph, describe, GRID, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
-    startup = Startup(maintainer, describe, StartupConfig())
-    startup.map_poses = places
+    startup = _given_a_pose(graph, places)
     startup.set_prior(poses[0] + np.array([1.8, 0.0, 0.0]))
     committed = None
     for k, (pose, scan) in enumerate(zip(poses, scans, strict=True)):
