@@ -530,7 +530,9 @@ class Navigator:
         robot from beside the goal back to that position and forth again until it was stuck."""
         goal = rest[-1]
         direct = self.local.plan(union, pose, goal, self._recent_obstacles())
-        if direct is None:
+        if direct is None or direct.level > 0:
+            # with the margin all the way only: a way by a door at the radius, taken straight from the
+            # side, met the jamb (office02), where the way by the location's position met the door square
             return target, planned
         onward = np.vstack([target[None, :2], rest])
         if planned is not None and direct.length > planned.length + float(np.hypot(*np.diff(onward, axis=0).T).sum()):
