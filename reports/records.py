@@ -41,7 +41,7 @@ from pydantic import (
 )
 
 from navkit.errors import BenchError
-from scenarios.schema import STOP_TOLERANCE_M
+from navkit.types import STOP_TOLERANCE_M
 
 MEMORY_PARTS = ("map", "localization", "derived", "model")
 

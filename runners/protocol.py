@@ -37,9 +37,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from navkit import geometry as se2
+from navkit.types import STOP_TOLERANCE_M
 from runners.systems import GroundTruth, SystemContext, SystemEntry
 from scenarios import Scenario
-from scenarios.schema import GOAL_TOLERANCE_M, STOP_TOLERANCE_M, OdometryNoiseSpec
+from scenarios.schema import GOAL_TOLERANCE_M, OdometryNoiseSpec
 
 if TYPE_CHECKING:
     from runners.sim import Simulator

@@ -37,8 +37,8 @@ from navkit import grid_search
 from navkit.follower import FollowerConfig, PathFollower
 from navkit.grid_planning import plan_path
 from navkit.raster import GridFrame
-from navkit.types import Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
-from scenarios.schema import STOP_TOLERANCE_M, RobotSpec, SensorSpec
+from navkit.types import STOP_TOLERANCE_M, Command, FailureStage, MemoryBreakdown, NavStatus, Observation, Status
+from scenarios.schema import RobotSpec, SensorSpec
 
 __all__ = [
     "Command",

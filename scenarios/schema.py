@@ -32,10 +32,6 @@ SUBSTEP_S = 0.05  # s, the simulator's collision-checked substep (runners/sim.py
 MAX_ROUTE_M = 100_000.0  # an auto route of 100 km takes a day to drive at 1 m/s
 MAX_SENSOR_RANGE_M = 500.0
 GOAL_TOLERANCE_M = 0.5  # the STOP rule's radius (runners.protocol): a trial's ends must lie farther apart
-# Every system that declares "reached" by its own estimate does so within this of the goal (nav2's
-# default xy_goal_tolerance): the 0.25 m left to the STOP rule is room for the system's map to sit off
-# the world frame (a map-frame goal converted through a drifting map; BENCHMARKS.md, "Design choices").
-STOP_TOLERANCE_M = 0.25
 # A trial's shortest path must leave the robot this much room beyond its radius on each side in its
 # narrowest gap (scenarios.gaps): one cell of the metric baseline's 0.1 m grid, so that a jamb its
 # grid draws a cell into a door still leaves the robot through. Gaps are measured up to GAP_CAP_M

@@ -22,9 +22,9 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel, ConfigDict, PrivateAttr, model_validator
 
+from navkit.types import STOP_TOLERANCE_M
 from runners.commands.checks import check_executor_flags, check_number, once_each, systems_list
 from runners.commands.errors import Refused
-from scenarios.schema import GOAL_TOLERANCE_M, STOP_TOLERANCE_M
 
 if TYPE_CHECKING:
     from runners.protocol import TrialProtocol
@@ -79,6 +79,7 @@ class RunRequest(BaseModel):
     def _apply_rules(self) -> RunRequest:
         """Every rule in the command's order; the derived values filled as they are checked."""
         from runners.protocol import INITIAL_POSES, TrialProtocol
+        from scenarios.schema import GOAL_TOLERANCE_M
 
         check_executor_flags(self.executor, self.ray_address, self.workers)
         self._system_list = systems_list(self.systems) if self.resume is None else []  # a resume: the manifest's
