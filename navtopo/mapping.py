@@ -463,10 +463,10 @@ class GraphMaintainer:
         here = self.pose_in_current
         distance_to_current = float(np.hypot(here[0], here[1]))
         options = []
-        left = self._left if self._left is not None and not self.mapping else None
-        shuttle = left is not None and self._odom.metres - left[1] < self.config.shuttle_guard
+        left = self._left
+        just_left = None if left is None or self.mapping or self._odom.metres - left[1] >= self.config.shuttle_guard else left[0]
         for vertex, pose_uv in self.graph.neighbours(self.current):
-            if shuttle and left is not None and vertex == left[0]:
+            if vertex == just_left:
                 continue  # just left it: the robot stays here by odometry a little longer
             distance = float(np.hypot(*(pose_uv[:2] - here[:2])))
             if distance < distance_to_current or distance < self.config.max_edge_length:
