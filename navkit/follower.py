@@ -24,9 +24,10 @@ otherwise drive forward. Additions, each small and documented:
   and slows over the last ``slowdown_distance`` metres of the path.
 
 The follower is frame-agnostic (path and poses only need to share a frame) and holds no state
-but the progress along the current path: an arc length that never decreases, found by
-projecting the robot onto a window of the path just ahead of it, so the progress cannot jump
-back, nor forward onto a later part of a path that doubles back.
+but whether it is turning in place (kept over a new path) and the progress along the current
+path: an arc length that never decreases, found by projecting the robot onto a window of the
+path just ahead of it, so the progress cannot jump back, nor forward onto a later part of a path
+that doubles back.
 """
 
 from __future__ import annotations
@@ -108,7 +109,7 @@ class PathFollower:
     def set_path(self, waypoints: ArrayLike) -> None:
         """Follow a new path: (K, 2) float64 points, K >= 1, in the frame of later poses.
 
-        Resets the progress. Repeated consecutive points are dropped.
+        Resets the progress; a turn in place under way goes on. Repeated consecutive points are dropped.
         """
         points = np.asarray(waypoints, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] == 0:
@@ -131,7 +132,9 @@ class PathFollower:
         self._progress = 0.0
         self._next_corner = 0
         self._reached = False
-        self._turning = False
+        # a turn in place under way goes on toward the new path until ``turn_in_place_until``: a plan
+        # replaced mid-turn left the robot 14 degrees off the new way, under the threshold, and it
+        # drove off so into a door's jamb beside it (a generated slam-ring, noisy)
 
     def clear(self) -> None:
         """Forget the path; commands are zero until the next ``set_path``."""
@@ -240,6 +243,15 @@ class PathFollower:
             factor = min(factor, to_corner / cfg.corner_slowdown)
         speed = max(cfg.max_linear * factor, min(cfg.min_linear, cfg.max_linear))
         return Command(speed * alignment, angular)
+
+    def advance(self, position: ArrayLike) -> float:
+        """The progress with the robot at ``position`` (2+,): moved to its projection onto the path
+        just ahead, as ``command`` moves it (the same position twice moves it once). A check between
+        two commands asks it here: the progress of the last command lags the robot by a tick (0.2 m
+        at full speed), and a point kept as still ahead by it lay behind the robot."""
+        if self.has_path:
+            self._advance(np.asarray(position, dtype=np.float64)[:2])
+        return self._progress
 
     def _advance(self, position: NDArray[np.float64]) -> None:
         """Move the progress to the robot's projection onto the path window just ahead."""

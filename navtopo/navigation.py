@@ -625,11 +625,12 @@ class Navigator:
         their middle, or shut (its returns become obstacles, the path is dropped; False: plan again).
         True: follow on."""
         check, follower = self._passages(), self.follower
-        if not check.due(obs.stamp, follower.progress):
+        progress = follower.advance(pose[:2])
+        if not check.due(obs.stamp, progress):
             return True
         assert check.passage is not None
         returns = self._returns_near(obs, pose, np.vstack([check.passage.entry, check.passage.exit]), check.reach())
-        verdict = check.check(obs.stamp, follower.path, follower.progress, returns, pose)
+        verdict = check.check(obs.stamp, follower.path, progress, returns, pose)
         if verdict.shut is not None:
             self.obstacles.mark(verdict.shut)
             self.counters["passages_blocked"] += 1

@@ -211,3 +211,38 @@ def test_past_a_corner_the_robot_faces_the_next_stretch_before_driving_on():
     first_drive = next(i for i in range(at_corner, len(commands)) if commands[i].linear > 0.0)
     heading_error = abs(wrap_angle(math.atan2(*(follower.path[-1] - poses[first_drive][:2])[::-1]) - poses[first_drive][2]))
     assert heading_error < 0.1 + 0.02
+
+
+def test_a_path_replaced_mid_turn_is_faced_before_the_robot_drives():
+    """A turn in place under way goes on toward a new path until ``turn_in_place_until``: a plan
+    replaced mid-turn left the robot 14 degrees off the new way (under the 0.5 rad threshold) and it
+    drove off so, into the jamb of the door it stood in."""
+    follower = PathFollower(FollowerConfig())
+    follower.set_path(np.array([[0.0, 0.0], [-2.0, 0.0]]))  # behind the robot: it turns in place
+    pose = np.array([0.0, 0.0, 0.0])
+    command = follower.command(pose)
+    assert command.linear == 0.0 and command.angular != 0.0
+    pose[2] = math.radians(-33.0)  # mid-turn, a new plan: the way on at -19 degrees
+    way = math.radians(-19.0)
+    follower.set_path(np.array([[0.0, 0.0], [3.0 * math.cos(way), 3.0 * math.sin(way)]]))
+    poses, commands = drive(follower, pose, dt=0.2, max_steps=300)
+    first_drive = next(i for i, c in enumerate(commands) if c.linear > 0.0)
+    assert first_drive > 0 and abs(wrap_angle(poses[first_drive][2] - way)) < 0.1 + 0.02
+    # a robot not turning drives off under the threshold as before
+    fresh = PathFollower(FollowerConfig())
+    fresh.set_path(np.array([[0.0, 0.0], [3.0 * math.cos(way), 3.0 * math.sin(way)]]))
+    assert fresh.command(np.array([0.0, 0.0, math.radians(-33.0)])).linear > 0.0
+
+
+def test_advance_is_the_progress_command_would_find_and_moves_it_once():
+    """A check between two commands (a passage's) asks the progress at the robot's position now: the
+    last command's lags a tick behind, and a path point it counted ahead lay behind the robot."""
+    follower = PathFollower(FollowerConfig())
+    follower.set_path(np.array([[0.0, 0.0], [4.0, 0.0]]))
+    follower.command(np.array([0.0, 0.0, 0.0]))
+    assert follower.progress == pytest.approx(0.0)
+    assert follower.advance(np.array([0.2, 0.05])) == pytest.approx(0.2)
+    assert follower.advance(np.array([0.2, 0.05])) == pytest.approx(0.2)
+    follower.command(np.array([0.2, 0.05, 0.0]))
+    assert follower.progress == pytest.approx(0.2)
+    assert PathFollower(FollowerConfig()).advance(np.array([1.0, 0.0])) == 0.0  # no path

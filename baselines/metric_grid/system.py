@@ -379,13 +379,14 @@ class MetricGrid:
         their middle, or shut (its returns become remembered obstacles, the path is dropped; False:
         plan again). True: follow on."""
         check, follower = self.passages, self.follower
-        if not check.due(obs.stamp, follower.progress):
+        progress = follower.advance(pose[:2])
+        if not check.due(obs.stamp, progress):
             return True
         assert check.passage is not None
         points = np.asarray(obstacle_points(obs.points, self.band)[:, :2], dtype=np.float64)
         segment = np.vstack([check.passage.entry, check.passage.exit])
         returns = returns_near(transform_points(pose, points), segment, check.reach())
-        verdict = check.check(obs.stamp, follower.path, follower.progress, returns, pose)
+        verdict = check.check(obs.stamp, follower.path, progress, returns, pose)
         if verdict.shut is not None:
             self.obstacles.memory.mark(verdict.shut)
             self.plan_counters["passages_blocked"] += 1
