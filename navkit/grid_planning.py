@@ -76,6 +76,7 @@ def plan_path(
     horizon_m: float | None = None,
     sight: Callable[[int], NDArray[np.uint8] | None] | None = None,
     search: Search = theta_star_search,
+    snap_through: NDArray[np.bool_] | None = None,
 ) -> PlannedPath | None:
     """The first path found on ``masks`` in order (see the module docstring), or None.
 
@@ -93,6 +94,9 @@ def plan_path(
     callable that gives None: made for each search).
     search: the cell search, ``(level, passable, start, goal, sight) -> cells or None`` (Lazy
     Theta*; the metric baseline's A* and goal field).
+    snap_through: (H, W) bool, optional: an end snaps only to a cell the straight line reaches over
+    these cells (``grid_search.nearest_free``'s ``through``: no wall cell between the robot and the
+    cell its path starts from).
     """
     start_xy = np.asarray(start_xy, dtype=np.float64)[:2]
     goal_xy = np.asarray(goal_xy, dtype=np.float64)[:2]
@@ -101,8 +105,8 @@ def plan_path(
     count = levels if callable(masks) else len(masks)
     for level in range(count or 0):
         passable = masks(level) if callable(masks) else masks[level]
-        start = grid_search.nearest_free(passable, start_cell, snap_cells)
-        goal = grid_search.nearest_free(passable, goal_cell, snap_cells)
+        start = grid_search.nearest_free(passable, start_cell, snap_cells, snap_through)
+        goal = grid_search.nearest_free(passable, goal_cell, snap_cells, snap_through)
         if start is None or goal is None:
             continue
         cells = search(level, passable, start, goal, None if sight is None else sight(level))

@@ -890,8 +890,23 @@ def _refine(clear, cells, sweeps):
 
 
 @njit(cache=True)
-def _nearest_free_kernel(free, row, col, max_radius):
-    """Nearest free cell by Euclidean distance, searching square rings of growing size."""
+def _open_line(through, row, col, r, c):
+    """Do the cells on the straight line from (row, col) to (r, c) (sampled every half cell, the
+    ends' own cells not counted) all lie on ``through`` (off the grid: yes)?"""
+    height, width = through.shape
+    steps = 2 * max(abs(r - row), abs(c - col))
+    for k in range(1, steps):
+        rr = int(np.floor(row + 0.5 + (r - row) * k / steps))
+        cc = int(np.floor(col + 0.5 + (c - col) * k / steps))
+        if (rr != row or cc != col) and (rr != r or cc != c) and 0 <= rr < height and 0 <= cc < width and not through[rr, cc]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _nearest_free_kernel(free, row, col, max_radius, through, check):
+    """Nearest free cell by Euclidean distance, searching square rings of growing size; with
+    ``check``, only cells the straight line from (row, col) reaches over ``through`` cells."""
     height, width = free.shape
     best_d2 = max_radius * max_radius + 1
     best_r = -1
@@ -910,7 +925,7 @@ def _nearest_free_kernel(free, row, col, max_radius):
                 c = col + dc
                 if 0 <= r < height and 0 <= c < width and free[r, c]:
                     d2 = dr * dr + dc * dc
-                    if d2 < best_d2:
+                    if d2 < best_d2 and (not check or _open_line(through, row, col, r, c)):
                         best_d2 = d2
                         best_r = r
                         best_c = c
@@ -1079,14 +1094,17 @@ def jps_smoothed(free: ArrayLike, start: ArrayLike, goal: ArrayLike, sight: NDAr
     return _pulled(clear, cells)
 
 
-def nearest_free(free: ArrayLike, cell: ArrayLike, max_radius_cells: int) -> Cell | None:
+def nearest_free(free: ArrayLike, cell: ArrayLike, max_radius_cells: int, through: ArrayLike | None = None) -> Cell | None:
     """The free cell nearest (Euclidean) to ``cell`` within ``max_radius_cells``, or None.
 
     free: (H, W) bool; cell: (row, col), may lie outside the grid. Returns ``cell`` itself when
     it is free. Use it to move a start or goal that falls inside the inflated zone.
+    through: (H, W) bool, optional: only a cell the straight line from ``cell`` reaches over these
+    cells counts (e.g. no wall cell on the way: a robot snapped a metre through a wall drove into it).
     """
     grid, (row, col) = _as_grid(free), _cell(cell)
-    r, c = _nearest_free_kernel(grid, row, col, max(int(max_radius_cells), 0))
+    lines = np.ones((1, 1), np.bool_) if through is None else _as_grid(through)
+    r, c = _nearest_free_kernel(grid, row, col, max(int(max_radius_cells), 0), lines, through is not None)
     if r < 0:
         return None
     return int(r), int(c)

@@ -526,11 +526,15 @@ class LocalPlanner:
         )
         ends = union.to_grid_axes(np.vstack([start[None, :2], target[None]]))
         end_cells = union.frame.to_cell(ends)
+        # an end snaps to a level's cells only over no wall: the way to them is driven straight (a
+        # robot in a room no location saw, the pose 0.2 m off, snapped to a corridor a metre away
+        # through the wall and drove into it; office02, noisy)
+        no_wall = union.cells != OCCUPIED
         planned = None
         for level, (kind, radius, medial) in enumerate(self.levels):
             passable = _passable(union, kind, radius, medial, blocked_xy)
-            start_cell = grid_search.nearest_free(passable, end_cells[0], snap)
-            goal_cell = grid_search.nearest_free(passable, end_cells[1], snap)
+            start_cell = grid_search.nearest_free(passable, end_cells[0], snap, no_wall)
+            goal_cell = grid_search.nearest_free(passable, end_cells[1], snap, no_wall)
             if start_cell is None or goal_cell is None:
                 continue
             parts = union.parts(kind, radius, medial) if blocked_xy is None or not len(blocked_xy) else _parts(passable)
@@ -548,6 +552,7 @@ class LocalPlanner:
                 prefer_m=0.0 if medial is not None or not self.config.keep_clear else self.wide + self.config.keep_clear,
                 hold_m=self.tight,
                 search=self._search,
+                snap_through=no_wall,
             )
             if found is None:
                 continue

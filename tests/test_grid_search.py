@@ -316,6 +316,22 @@ def test_nearest_free_moves_a_cell_out_of_the_inflated_zone():
     assert gs.nearest_free(free, (25, 25), 10) == (19, 19)  # outside the grid
 
 
+def test_nearest_free_through_snaps_over_no_wall():
+    """A robot in a room no location saw, a wall between it and the corridor's free cells a metre
+    off: snapped over the wall it drove into it. With ``through`` (no wall cell on the way) the cell
+    beyond the wall does not count; the one in the room, farther, does."""
+    free = np.zeros((30, 30), bool)
+    free[10:20, 16:] = True  # the corridor, east of the wall
+    free[10:20, :3] = True  # free cells in the room, far to the west
+    wall = np.zeros_like(free)
+    wall[:, 13] = True
+    robot = (15, 11)
+    assert gs.nearest_free(free, robot, 10) == (15, 16)  # through the wall, 5 cells
+    assert gs.nearest_free(free, robot, 10, through=~wall) == (15, 2)  # in the room, 9 cells
+    assert gs.nearest_free(free, robot, 6, through=~wall) is None
+    assert gs.nearest_free(free, (15, 17), 10, through=~wall) == (15, 17)  # a free cell is itself
+
+
 def test_passable_joins_every_diagonal_touch_through_a_clear_free_side_cell():
     """On random rubble (0.05 m cells, the robot's 0.3 m): what a level's cells joined only by
     diagonal steps (8-connected), the search's 4-connected moves now join; each cell added for it
