@@ -15,10 +15,23 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from navkit.geometry import inverse, transform_points
+from navkit.follower import PathFollower
+from navkit.geometry import distance_to_polyline, inverse, transform_points
 from navkit.raster import GridFrame
 
 BINS = 360
+
+#: The scan guard of every system (``too_near_ahead``): the scan's returns the path's next
+#: ``GUARD_AHEAD_M`` metres bring the robot nearer than its radius plus ``GUARD_MARGIN_M`` to.
+#: A path planned on a map keeps its clearance from the map's walls, which stand where the pose
+#: estimate puts them: 0.1-0.2 m off, a path at the radius plus a few centimetres met a table's
+#: corner or a jamb that the scan showed where it was (a start in a room no location saw; a pose
+#: carried by noisy odometry). The scan and the path share the pose estimate, so the check holds
+#: whatever the error; the margin covers the scan's range noise and the follower's few centimetres.
+GUARD_MARGIN_M = 0.02
+GUARD_AHEAD_M = 1.0
+#: updates (scans) a return the guard marks is kept whatever later rays show (``ObstacleMemory``)
+GUARD_HOLD = 25
 
 
 def _bins(xy: NDArray) -> NDArray[np.int64]:
@@ -27,7 +40,10 @@ def _bins(xy: NDArray) -> NDArray[np.int64]:
 
 
 class ObstacleMemory:
-    """Marked obstacle points, cleared by rays that pass them."""
+    """Marked obstacle points, cleared by rays that pass them; a point marked with a ``hold`` is kept
+    through that many updates whatever the rays do (the scan guard's: a table's corner between two
+    rays was cleared by the next scan, found too near again, and the robot stood planning the same
+    path at every tick)."""
 
     def __init__(self, resolution: float = 0.1, clear_margin: float = 0.3, max_points: int = 20000) -> None:
         self.resolution = resolution
@@ -37,6 +53,7 @@ class ObstacleMemory:
 
     def clear(self) -> None:
         self._cells = np.zeros((0, 2), dtype=np.int64)
+        self._hold = np.zeros(0, dtype=np.int64)  # updates each cell is kept through, uncleared
 
     def __len__(self) -> int:
         return len(self._cells)
@@ -63,14 +80,30 @@ class ObstacleMemory:
         max_range: directions without a return are seen through up to this far.
         """
         if len(self._cells):
-            self._cells = self._cells[~self._seen_through(pose, np.asarray(scan_xy)[:, :2], max_range)]
+            keep = ~self._seen_through(pose, np.asarray(scan_xy)[:, :2], max_range) | (self._hold > 0)
+            self._cells, self._hold = self._cells[keep], np.maximum(self._hold[keep] - 1, 0)
         self.mark(new_xy)
 
-    def mark(self, xy: NDArray) -> None:
-        """Mark points (M, 2+) of the planning frame."""
+    def marked(self, xy: NDArray) -> NDArray[np.bool_]:
+        """Which points (M, 2+) of the planning frame lie on a marked cell."""
+        if not len(xy) or not len(self._cells):
+            return np.zeros(len(xy), dtype=bool)
+        cells = self.frame.to_cell(np.asarray(xy, dtype=np.float64)[:, :2])[:, ::-1]
+        labels = np.unique(np.vstack([self._cells, cells]), axis=0, return_inverse=True)[1].ravel()
+        return np.isin(labels[len(self._cells) :], labels[: len(self._cells)])
+
+    def mark(self, xy: NDArray, hold: int = 0) -> None:
+        """Mark points (M, 2+) of the planning frame, kept uncleared through ``hold`` updates."""
         if len(xy):
             cells = self.frame.to_cell(np.asarray(xy, dtype=np.float64)[:, :2])[:, ::-1]  # kept as [x, y] cells
-            self._cells = np.unique(np.vstack([self._cells, cells]), axis=0)[-self.max_points :]
+            self._set(np.vstack([self._cells, cells]), np.concatenate([self._hold, np.full(len(cells), hold, np.int64)]))
+
+    def _set(self, cells: NDArray[np.int64], hold: NDArray[np.int64]) -> None:
+        """Keep ``cells`` (N, 2), each once with the longest of its holds; the last ``max_points``."""
+        self._cells, labels = np.unique(cells, axis=0, return_inverse=True)
+        self._hold = np.zeros(len(self._cells), np.int64)
+        np.maximum.at(self._hold, labels.ravel(), hold)
+        self._cells, self._hold = self._cells[-self.max_points :], self._hold[-self.max_points :]
 
     def _seen_through(self, pose: NDArray, scan_xy: NDArray, max_range: float) -> NDArray[np.bool_]:
         """Which marked points lie in front of this scan's first return in their direction."""
@@ -91,4 +124,40 @@ class ObstacleMemory:
         """Re-express the points in a new frame: ``pose`` is the new frame's origin in the old one."""
         if len(self._cells):
             moved = transform_points(inverse(pose), self.points)
-            self._cells = np.unique(self.frame.to_cell(moved)[:, ::-1], axis=0)
+            self._set(self.frame.to_cell(moved)[:, ::-1], self._hold)
+
+
+def too_near_ahead(ahead: NDArray, position: NDArray, returns: NDArray, clearance: float) -> NDArray[np.float64]:
+    """The scan guard (``GUARD_MARGIN_M``): the returns (N, 2+) that the way ahead (``position``
+    (2,), then the path's points ahead of the robot, (K, 2)) comes nearer than ``clearance`` to, and
+    nearer than the robot is to them now (a return beside the robot that the path leads away from
+    is none: the planner's start already stands in its reach). Empty when the way keeps clear."""
+    returns = np.asarray(returns, dtype=np.float64)
+    if returns.ndim != 2 or not len(returns) or not len(ahead):
+        return np.zeros((0, 2))
+    returns = returns[:, :2]
+    way = np.vstack([np.asarray(position, dtype=np.float64)[None, :2], np.asarray(ahead, dtype=np.float64)[:, :2]])
+    now = np.hypot(*(returns - way[0]).T)
+    near = now < clearance + float(np.hypot(*np.diff(way, axis=0).T).sum())
+    if not near.any():
+        return np.zeros((0, 2))
+    distance = distance_to_polyline(returns[near], way)
+    hit = (distance < clearance) & (distance < now[near] - 0.01)
+    return returns[near][hit]
+
+
+def scan_guard(follower: PathFollower, memory: ObstacleMemory, pose: NDArray, returns: NDArray, radius: float) -> bool:
+    """The scan guard of a system between its plans: does the way ahead of ``follower`` come too near
+    (``too_near_ahead``, ``radius`` + ``GUARD_MARGIN_M``) to the scan's ``returns`` (N, 2+, robot
+    frame; the robot at ``pose`` (3,) of the planning frame) not yet in ``memory``? Then they are
+    marked there, held ``GUARD_HOLD`` updates (True: the caller drops the path and plans again)."""
+    if not follower.has_path:
+        return False
+    follower.advance(pose[:2])
+    xy = transform_points(pose, np.asarray(returns, dtype=np.float64)[:, :2])
+    near = too_near_ahead(follower.path_ahead(GUARD_AHEAD_M), pose[:2], xy, radius + GUARD_MARGIN_M)
+    near = near[~memory.marked(near)]
+    if not len(near):
+        return False
+    memory.mark(near, GUARD_HOLD)
+    return True

@@ -328,12 +328,15 @@ class GraphMaintainer:
         route: list[int] | None = None,
         force: bool = False,
         localize: bool = True,
+        ahead: int = 1,
     ) -> str:
         """Integrate odometry and, when due (or ``force``), update the state (and, mapping, the graph).
 
         route: navigating, the global path from the current vertex; the robot moves to its next
         vertex as soon as it is nearer to that one's centre than to the current one's and scan
         matching agrees (the paper: "we try to change v_cur to the next node in the path").
+        ahead: the index in ``route`` of the vertex the local path heads for (the vertices before it
+        passed by a straight cut; ``_move_along_route``).
         localize: whether a robot that is neither inside nor along an edge may localize globally.
         Returns what happened: "odometry", "inside", "edge", "route", "localized", "new_vertex" or "lost".
         """
@@ -348,7 +351,8 @@ class GraphMaintainer:
             self._add_vertex(grid, points, odom, stamp, edge_from_current=False)
             return "new_vertex"
         query = prepare(grid, self.grid_config, self.matching)
-        if self.current is not None and route and len(route) > 1 and self._move_along_route(query, route[1]):
+        way = route[: max(min(ahead, len(route) - 1), 1) + 1] if route else []
+        if self.current is not None and len(way) > 1 and self._move_along_route(query, way):
             self.counters.moved_along_route += 1
             return "route"
         inside = self._inside(grid) if self.current is not None else ""
@@ -360,7 +364,7 @@ class GraphMaintainer:
                 self._measure_neighbour(query)
                 self._close_from_inside(query, odom)
             return "inside"
-        if self.current is not None and route and len(route) > 1 and self._move_along_route(query, route[1], nearer=False):
+        if self.current is not None and len(way) > 1 and self._move_along_route(query, way, nearer=False):
             # out of the location's reach: the paper's next try is the path's next vertex, before any
             # other neighbour (the nearest one may be the vertex the path just came from)
             self.counters.moved_along_route += 1
@@ -381,23 +385,31 @@ class GraphMaintainer:
         self.counters.odometry_only += 1
         return "lost"
 
-    def _move_along_route(self, query: PreparedGrid, next_vertex: int, nearer: bool = True) -> bool:
-        """Switch to the route's next vertex if matching agrees: once nearer to it than to the current
-        one (``nearer``), or wherever the robot is (it has left the current location's reach)."""
+    def _move_along_route(self, query: PreparedGrid, way: list[int], nearer: bool = True) -> bool:
+        """Switch to a vertex of the route ahead (``way``: from the current vertex to the one the local
+        path heads for) if matching agrees: that last one, else the route's next one (``way[1]``), each
+        placed by the edges along the way; once nearer to it than to the current one (``nearer``), or
+        wherever the robot is (it has left the current location's reach). A path cut straight past a
+        location (``LocalPlanner.aim``) ends at a vertex no edge joins to the current one: the robot
+        stood at its centre, in no location but the one it had left, and planned the same path again
+        until the time ran out (office02, precise)."""
         assert self.current is not None
-        if not self.graph.has_edge(self.current, next_vertex):
+        if way[0] != self.current or not all(self.graph.has_edge(a, b) for a, b in zip(way[:-1], way[1:], strict=True)):
             return False
         here = self.pose_in_current
-        pose_uv = self.graph.edge(self.current, next_vertex)
-        if nearer and float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
-            return False
-        self.counters.matches += 1
-        located = self.localizer.verify(query, next_vertex, between(pose_uv, here), self.config.max_neighbour_jump)
-        if located is None:
-            return False
-        self._switch(next_vertex, located.pose, self._located_covariance(located))
-        self.last_verified = True
-        return True
+        for end in dict.fromkeys((len(way) - 1, 1)):
+            vertex = way[end]
+            pose_uv = self.chain(way[: end + 1])[0]
+            if nearer and float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
+                continue
+            self.counters.matches += 1
+            located = self.localizer.verify(query, vertex, between(pose_uv, here), self.config.max_neighbour_jump)
+            if located is None:
+                continue
+            self._switch(vertex, located.pose, self._located_covariance(located))
+            self.last_verified = True
+            return True
+        return False
 
     def _inside(self, grid: NDArray[np.uint8]) -> str:
         """ "seen": near the location's centre, on a cell it knows, the scans overlapping enough;

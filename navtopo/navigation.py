@@ -42,7 +42,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
 from navkit.geometry import between, compose, inverse, transform_points
-from navkit.obstacles import ObstacleMemory
+from navkit.obstacles import ObstacleMemory, scan_guard
 from navkit.odometer import Odometer
 from navkit.passages import PassageCheck, PassageConfig, returns_near
 from navkit.raster import FREE
@@ -223,6 +223,7 @@ class Navigator:
                 "scan_plans",
                 "recoveries",
                 "edges_shut_ahead",
+                "scan_guard_stops",
             ],
             0,
         )
@@ -286,7 +287,9 @@ class Navigator:
         if not self.localized:
             return self._step_unlocalized(obs)
         before = self.maintainer.current
-        event = self.maintainer.update(obs.points, obs.odom, obs.stamp, route=self._route, force=self._at_path_end())
+        event = self.maintainer.update(
+            obs.points, obs.odom, obs.stamp, route=self._route, force=self._at_path_end(), ahead=self._heading_for()
+        )
         if self.maintainer.current != before or event == "localized":
             self._path_vertex = None  # a new frame: plan again
         current = self.maintainer.current
@@ -390,10 +393,20 @@ class Navigator:
                 return Command()
         if not self._check_passage(obs, pose):
             return Command()  # the passage is shut to the robot: plan again at the next tick
+        if self._guard_stops(obs, pose):
+            return Command()  # the scan shows the way ahead too near a return: plan again round it
         if not tentative and self._stuck(obs, pose):
             return Command()
         command = self.follower.command(pose)
         return command
+
+    def _heading_for(self) -> int:
+        """The index in the route of the vertex the local path heads for: past the route points a
+        straight cut left behind (``LocalPlanner.aim``; 1: the next vertex)."""
+        route, aimed = self._route, self._aimed
+        if not route or aimed is None or aimed[0] != (self._path_vertex, tuple(route)):
+            return 1
+        return max(min(aimed[1] + 1, len(route) - 1), 1)
 
     def _goal_in(self, vertex: int) -> NDArray[np.float64] | None:
         """The goal's position in ``vertex``'s frame through the global path (None: no path)."""
@@ -640,6 +653,17 @@ class Navigator:
         if verdict.path is not None:
             follower.set_path(verdict.path)
             self.counters["passages_centred"] += 1
+        return True
+
+    def _guard_stops(self, obs: Observation, pose: NDArray) -> bool:
+        """The scan guard (``navkit.obstacles.scan_guard``): True when returns the way ahead comes too
+        near to were marked and the path dropped (plan again)."""
+        points = obstacle_points(obs.points, self.maintainer.grid_config)
+        if not scan_guard(self.follower, self.obstacles, pose, points, self.robot_radius):
+            return False
+        self.counters["scan_guard_stops"] += 1
+        self._path_vertex = None
+        self.follower.clear()
         return True
 
     def _returns_near(self, obs: Observation, pose: NDArray, segment: NDArray, reach: float) -> NDArray[np.float64]:

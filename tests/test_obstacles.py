@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from navkit.obstacles import ObstacleMemory
+from navkit.obstacles import GUARD_HOLD, ObstacleMemory, too_near_ahead
 
 
 def _ring(radius: float, count: int = 360) -> np.ndarray:
@@ -59,3 +59,33 @@ def test_the_baseline_keeps_a_shut_door_behind_a_near_wall_its_filtered_scan_lea
         assert len(filtered) < len(wall) / 4
         layer.update(robot, filtered, MapExplainsEveryReturn(), rays=rays)  # type: ignore[arg-type]
         assert (len(layer.points) == marked) is kept
+
+
+def test_a_mark_held_stays_through_rays_that_pass_it_until_its_hold_runs_out():
+    """The scan guard's marks (a table's corner between two 1-degree rays, cleared by the next scan
+    and found too near again at every tick) are held ``GUARD_HOLD`` updates, then cleared as any."""
+    memory = ObstacleMemory()
+    corner = np.array([[2.0, 0.0]])
+    memory.mark(corner, GUARD_HOLD)
+    memory.mark(np.array([[0.0, 2.0]]))  # an ordinary mark: gone at the first scan that passes it
+    robot = np.zeros(3)
+    for _ in range(GUARD_HOLD):
+        memory.update(robot, _ring(5.0), np.zeros((0, 2)), max_range=6.0)
+        assert memory.marked(corner).all() and len(memory) == 1
+    memory.update(robot, _ring(5.0), np.zeros((0, 2)), max_range=6.0)
+    assert len(memory) == 0
+    memory.mark(corner, 3)
+    memory.transform(np.array([1.0, 0.0, 0.0]))
+    assert memory.marked(np.array([[1.0, 0.0], [0.0, 0.0]])).tolist() == [True, False]  # held in the new frame
+
+
+def test_the_scan_guard_finds_returns_the_way_ahead_comes_too_near_to_not_those_it_leaves():
+    """The way ahead (robot at the origin, path east then north) passes a table's corner at 0.25 m:
+    found at a clearance of 0.32; a return beside the robot that the path leads away from is not
+    (the robot already stands in its reach), nor one the path keeps 0.5 m from."""
+    path = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]])
+    corner, beside, far = [1.0, 0.25], [-0.1, 0.28], [2.5, 1.0]
+    found = too_near_ahead(path[1:], path[0], np.array([corner, beside, far]), 0.32)
+    assert np.allclose(found, [corner])
+    assert len(too_near_ahead(path[1:], path[0], np.array([far]), 0.32)) == 0
+    assert len(too_near_ahead(path[1:], path[0], np.zeros((0, 2)), 0.32)) == 0

@@ -262,3 +262,37 @@ def test_out_of_reach_the_path_s_next_vertex_is_tried_before_the_nearest_neighbo
 
 def pose_error_of(pose, truth) -> float:
     return float(np.hypot(*(np.asarray(pose)[:2] - np.asarray(truth)[:2])))
+
+
+def test_a_path_cut_past_a_location_moves_the_robot_to_the_vertex_it_heads_for():
+    """A local path cut straight past a location (A - B - C, B a hall off the corridor) ends at C,
+    which no edge joins to A: at C's centre the robot moves to C through the route (``ahead``), where
+    with the next vertex alone it stayed in A and planned the same path again (office02, precise)."""
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+
+    poses = {"A": np.array([12.5, 0.0, 0.0]), "B": np.array([13.0, 5.0, np.pi / 2]), "C": np.array([8.5, 0.0, np.pi])}
+    graph = TopologicalGraph(4)
+    ids = {}
+    for name, pose in poses.items():
+        grid = CroppedGrid.from_grid(grid_at(pose))
+        ids[name] = graph.add_vertex(grid, np.ones(4, dtype=np.float32), pose, stamp=float(len(ids)))
+    graph.add_edge(ids["A"], ids["B"], between(poses["A"], poses["B"]))
+    graph.add_edge(ids["B"], ids["C"], between(poses["B"], poses["C"]))
+    describe = lambda points: np.ones(4, dtype=np.float32)  # noqa: E731 - no recognition needed here
+    robot = np.array([8.6, 0.1, np.pi])
+    points = lidar_scan(WORLD, robot, ceiling=WALL_HEIGHT)
+    route = [ids["A"], ids["B"], ids["C"]]
+    outcomes = {}
+    for ahead in (1, 2):
+        maintainer = GraphMaintainer(
+            graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False
+        )
+        maintainer.start_at(ids["A"], between(poses["A"], robot), robot)
+        outcomes[ahead] = (maintainer.update(points, robot, stamp=1.0, route=route, force=True, ahead=ahead), maintainer.current)
+        if ahead == 2:
+            assert pose_error_of(maintainer.pose_in_current, between(poses["C"], robot)) < 0.1
+    assert outcomes[2] == ("route", ids["C"])
+    assert outcomes[1][1] != ids["C"]  # by the next vertex alone: not where the robot stands

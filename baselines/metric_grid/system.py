@@ -52,6 +52,7 @@ from navkit import grid_search
 from navkit.explore import Explorer
 from navkit.follower import PathFollower, ProgressCheck
 from navkit.geometry import transform_points
+from navkit.obstacles import scan_guard
 from navkit.odometer import Odometer
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.passages import PassageCheck, returns_near
@@ -88,6 +89,7 @@ PLAN_COUNTERS = (
     "recoveries",
     "passages_centred",
     "passages_blocked",
+    "scan_guard_stops",
 )
 
 
@@ -339,6 +341,12 @@ class MetricGrid:
                 return Command()
         if not self._check_passage(obs, pose):
             return Command()  # the passage is shut to the robot: plan again at the next tick
+        if scan_guard(self.follower, self.obstacles.memory, pose, band, self.robot_radius):
+            # the scan shows the way ahead too near a return (``navkit.obstacles.scan_guard``)
+            self.plan_counters["scan_guard_stops"] += 1
+            self.follower.clear()
+            self._last_plan_stamp = -np.inf
+            return Command()
         command = self.follower.command(pose)
         if self.follower.reached:
             off = float(np.hypot(*(pose[:2] - self._goal)))
