@@ -27,8 +27,11 @@ BINS = 360
 #: estimate puts them: 0.1-0.2 m off, a path at the radius plus a few centimetres met a table's
 #: corner or a jamb that the scan showed where it was (a start in a room no location saw; a pose
 #: carried by noisy odometry). The scan and the path share the pose estimate, so the check holds
-#: whatever the error; the margin covers the scan's range noise and the follower's few centimetres.
-GUARD_MARGIN_M = 0.02
+#: whatever the error. No margin: a path that would touch a return, followed exactly, is the one
+#: stopped; at 0.02 m a precise run's path through a narrow passage 0.318 m from a jamb was, the
+#: marks closed the passage (returns marked on 0.1 m cells, the planner keeping the radius and half
+#: a cell from them), and the trial ended ``no_path`` 3 m from its goal (office02).
+GUARD_MARGIN_M = 0.0
 GUARD_AHEAD_M = 1.0
 #: updates (scans) a return the guard marks is kept whatever later rays show (``ObstacleMemory``)
 GUARD_HOLD = 25
@@ -83,6 +86,11 @@ class ObstacleMemory:
             keep = ~self._seen_through(pose, np.asarray(scan_xy)[:, :2], max_range) | (self._hold > 0)
             self._cells, self._hold = self._cells[keep], np.maximum(self._hold[keep] - 1, 0)
         self.mark(new_xy)
+
+    @property
+    def holding(self) -> bool:
+        """Are any marks held (``mark``'s ``hold``) still?"""
+        return bool((self._hold > 0).any())
 
     def marked(self, xy: NDArray) -> NDArray[np.bool_]:
         """Which points (M, 2+) of the planning frame lie on a marked cell."""

@@ -71,9 +71,9 @@ def test_a_mark_held_stays_through_rays_that_pass_it_until_its_hold_runs_out():
     robot = np.zeros(3)
     for _ in range(GUARD_HOLD):
         memory.update(robot, _ring(5.0), np.zeros((0, 2)), max_range=6.0)
-        assert memory.marked(corner).all() and len(memory) == 1
+        assert memory.marked(corner).all() and len(memory) == 1 and memory.holding
     memory.update(robot, _ring(5.0), np.zeros((0, 2)), max_range=6.0)
-    assert len(memory) == 0
+    assert len(memory) == 0 and not memory.holding
     memory.mark(corner, 3)
     memory.transform(np.array([1.0, 0.0, 0.0]))
     assert memory.marked(np.array([[1.0, 0.0], [0.0, 0.0]])).tolist() == [True, False]  # held in the new frame
