@@ -394,12 +394,17 @@ class GraphMaintainer:
         stood at its centre, in no location but the one it had left, and planned the same path again
         until the time ran out (office02, precise)."""
         assert self.current is not None
-        if way[0] != self.current or not all(self.graph.has_edge(a, b) for a, b in zip(way[:-1], way[1:], strict=True)):
-            return False
+        candidates = []  # (vertex, its pose in the current vertex's frame)
+        if (
+            len(way) > 2
+            and way[0] == self.current
+            and all(self.graph.has_edge(a, b) for a, b in zip(way[:-1], way[1:], strict=True))
+        ):
+            candidates.append((way[-1], self.chain(way)[0]))
+        if self.graph.has_edge(self.current, way[1]):
+            candidates.append((way[1], self.graph.edge(self.current, way[1])))
         here = self.pose_in_current
-        for end in dict.fromkeys((len(way) - 1, 1)):
-            vertex = way[end]
-            pose_uv = self.chain(way[: end + 1])[0]
+        for vertex, pose_uv in candidates:
             if nearer and float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
                 continue
             self.counters.matches += 1
