@@ -230,17 +230,15 @@ def test_a_hint_off_by_more_than_the_guess_window_still_finds_the_place_within_i
     assert localizer.localize(query, np.ones(4, dtype=np.float32), robot_hint=drifted_hint, hint_gate={0: 3.0}) == []
 
 
-def test_out_of_reach_the_path_s_next_vertex_is_tried_before_the_nearest_neighbour():
-    """Navigating from B (a hall off the corridor) to C (west along the corridor) on a graph whose
-    way there is A - B - C: back in the corridor, out of B's reach and nearest to A, the robot moves
-    to C, the path's next vertex — not to A, whose path leads back through B (the robot shuttled
-    between A and B)."""
+def _hall_graph(c_x: float):
+    """A - B - C: A and C on the corridor (C at ``c_x``, west), B a hall off it; the graph, the
+    poses, the vertex ids and a maintainer factory (navigating)."""
     from navtopo.graph import TopologicalGraph
     from navtopo.local_grid import CroppedGrid
     from navtopo.localization import LocalizationConfig
     from navtopo.mapping import GraphMaintainer, MappingConfig
 
-    poses = {"A": np.array([12.5, 0.0, 0.0]), "B": np.array([13.0, 5.0, np.pi / 2]), "C": np.array([5.5, 0.0, np.pi])}
+    poses = {"A": np.array([12.5, 0.0, 0.0]), "B": np.array([13.0, 5.0, np.pi / 2]), "C": np.array([c_x, 0.0, np.pi])}
     graph = TopologicalGraph(4)
     ids = {}
     for name, pose in poses.items():
@@ -249,7 +247,22 @@ def test_out_of_reach_the_path_s_next_vertex_is_tried_before_the_nearest_neighbo
     graph.add_edge(ids["A"], ids["B"], between(poses["A"], poses["B"]))
     graph.add_edge(ids["B"], ids["C"], between(poses["B"], poses["C"]))
     describe = lambda points: np.ones(4, dtype=np.float32)  # noqa: E731 - no recognition needed here
-    maintainer = GraphMaintainer(graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False)
+
+    def maintainer() -> GraphMaintainer:
+        return GraphMaintainer(graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False)
+
+    return poses, ids, maintainer
+
+
+def test_out_of_reach_the_path_s_next_vertex_is_tried_before_the_nearest_neighbour():
+    """Navigating from B (a hall off the corridor) to C (west along the corridor) on a graph whose
+    way there is A - B - C: back in the corridor, out of B's reach and nearest to A, the robot moves
+    to C, the path's next vertex — not to A, whose path leads back through B (the robot shuttled
+    between A and B)."""
+    from navtopo.mapping import MappingConfig
+
+    poses, ids, make = _hall_graph(5.5)
+    maintainer = make()
     robot = np.array([11.5, 0.0, np.pi])
     to_b, to_c = (np.hypot(*(robot[:2] - poses[name][:2])) for name in "BC")
     assert MappingConfig().max_edge_length < to_b < to_c  # out of B's reach, yet not nearer to C
@@ -268,28 +281,13 @@ def test_a_path_cut_past_a_location_moves_the_robot_to_the_vertex_it_heads_for()
     """A local path cut straight past a location (A - B - C, B a hall off the corridor) ends at C,
     which no edge joins to A: at C's centre the robot moves to C through the route (``ahead``), where
     with the next vertex alone it stayed in A and planned the same path again (office02, precise)."""
-    from navtopo.graph import TopologicalGraph
-    from navtopo.local_grid import CroppedGrid
-    from navtopo.localization import LocalizationConfig
-    from navtopo.mapping import GraphMaintainer, MappingConfig
-
-    poses = {"A": np.array([12.5, 0.0, 0.0]), "B": np.array([13.0, 5.0, np.pi / 2]), "C": np.array([8.5, 0.0, np.pi])}
-    graph = TopologicalGraph(4)
-    ids = {}
-    for name, pose in poses.items():
-        grid = CroppedGrid.from_grid(grid_at(pose))
-        ids[name] = graph.add_vertex(grid, np.ones(4, dtype=np.float32), pose, stamp=float(len(ids)))
-    graph.add_edge(ids["A"], ids["B"], between(poses["A"], poses["B"]))
-    graph.add_edge(ids["B"], ids["C"], between(poses["B"], poses["C"]))
-    describe = lambda points: np.ones(4, dtype=np.float32)  # noqa: E731 - no recognition needed here
+    poses, ids, make = _hall_graph(8.5)
     robot = np.array([8.6, 0.1, np.pi])
     points = lidar_scan(WORLD, robot, ceiling=WALL_HEIGHT)
     route = [ids["A"], ids["B"], ids["C"]]
     outcomes = {}
     for ahead in (1, 2):
-        maintainer = GraphMaintainer(
-            graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False
-        )
+        maintainer = make()
         maintainer.start_at(ids["A"], between(poses["A"], robot), robot)
         outcomes[ahead] = (maintainer.update(points, robot, stamp=1.0, route=route, force=True, ahead=ahead), maintainer.current)
         if ahead == 2:
