@@ -95,8 +95,9 @@ class MappingConfig(BaseModel):
     shuttle_guard: float = Field(
         1.0,
         ge=0,
-        description="navigating: after a move from one location into another, no move along an edge back into the "
-        "first before the robot has driven this far (m); the location left is still taken along the route. A robot "
+        description="navigating: after a move out of a location, no move along an edge back into it before the robot "
+        "has driven this far (m), for every location left (not only the last: three locations at one junction took "
+        "the robot round 4 -> 5 -> 6 -> 4 at every update); a location left is still taken along the route. A robot "
         "between two locations, the new one not verifying it where it stands, was moved back and forth at every "
         "update, each move a plan in another frame, and turned on the spot until stuck or out of time",
     )
@@ -275,7 +276,7 @@ class GraphMaintainer:
         self._odom_at_update: NDArray[np.float64] | None = None
         self._odometer_verified = 0.0  # the odometer when the pose was last verified by scan matching
         self._odometer_at_vertex: dict[int, float] = {}
-        self._left: tuple[int, float] | None = None  # the location last moved out of, and the odometer then
+        self._left: dict[int, float] = {}  # the locations moved out of, and the odometer when the robot last left each
         self._edges: dict[tuple[int, int], EdgeEstimate] = {}
         self._odometer_at_measure: dict[tuple[int, int], float] = {}
         self._odometer_at_closure_check = -np.inf
@@ -318,7 +319,7 @@ class GraphMaintainer:
         self._odom.restart_from(None)
         self._odom_at_update = None
         self.last_verified = False
-        self._left = None
+        self._left = {}
 
     def update(
         self,
@@ -480,10 +481,10 @@ class GraphMaintainer:
         here = self.pose_in_current
         distance_to_current = float(np.hypot(here[0], here[1]))
         options = []
-        left = self._left
-        just_left = None if left is None or self.mapping or self._odom.metres - left[1] >= self.config.shuttle_guard else left[0]
+        guard = 0.0 if self.mapping else self.config.shuttle_guard
+        just_left = {vertex for vertex, odometer in self._left.items() if self._odom.metres - odometer < guard}
         for vertex, pose_uv in self.graph.neighbours(self.current):
-            if vertex == just_left:
+            if vertex in just_left:
                 continue  # just left it: the robot stays here by odometry a little longer
             distance = float(np.hypot(*(pose_uv[:2] - here[:2])))
             if distance < distance_to_current or distance < self.config.max_edge_length:
@@ -881,7 +882,7 @@ class GraphMaintainer:
 
     def _switch(self, vertex: int, pose_in_vertex: NDArray[np.float64], covariance: NDArray[np.float64] | None = None) -> None:
         if self.current is not None and vertex != self.current:
-            self._left = (self.current, self._odom.metres)
+            self._left[self.current] = self._odom.metres
         self._odometer_verified = self._odom.metres
         self.current = vertex
         self.pose_in_current = np.asarray(pose_in_vertex, dtype=np.float64).copy()

@@ -479,11 +479,8 @@ def test_a_look_alike_closure_in_the_map_is_undone_when_the_right_place_contradi
     assert maintainer.counters.undone_closures == 1
 
 
-def test_a_robot_that_just_moved_into_a_location_is_not_moved_straight_back():
-    """Navigating, between two locations that both verify the robot (here every match does): once
-    moved from location 0 into 1, no move along the edge back into 0 before the robot has driven
-    ``shuttle_guard`` metres (moved back and forth at every update, each move a plan in another
-    frame, a robot turned on the spot until it was stuck); after that, as before."""
+def _agreeing_maintainer(positions: list[tuple[float, float]], edges: list[tuple[int, int]]):
+    """A navigating maintainer on locations at ``positions`` joined by ``edges``, every match verified."""
     from types import SimpleNamespace
 
     from navkit.scan_grid import GridConfig, grid_from_points
@@ -496,18 +493,40 @@ def test_a_robot_that_just_moved_into_a_location_is_not_moved_straight_back():
     grid_config = GridConfig()
     graph = TopologicalGraph(4)
     grid = CroppedGrid.from_grid(grid_from_points(np.array([[3.0, 2.0, 0.5], [3.0, -2.0, 0.5]], np.float32), grid_config))
-    for k in range(2):
-        graph.add_vertex(grid, np.ones(4, np.float32), np.array([3.0 * k, 0.0, 0.0]), float(k))
-    graph.add_edge(0, 1, np.array([3.0, 0.0, 0.0]))
-    config = MappingConfig()
+    poses = [np.array([x, y, 0.0]) for x, y in positions]
+    for k, pose in enumerate(poses):
+        graph.add_vertex(grid, np.ones(4, np.float32), pose, float(k))
+    for u, v in edges:
+        graph.add_edge(u, v, poses[v] - poses[u])
     describe = lambda points: np.ones(4, np.float32)  # noqa: E731
-    maintainer = GraphMaintainer(graph, describe, grid_config, MatchingConfig(), config, LocalizationConfig(), False)
+    maintainer = GraphMaintainer(graph, describe, grid_config, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
     maintainer.localizer.verify = lambda query, vertex, guess, jump: SimpleNamespace(  # every match verifies
         pose=np.asarray(guess, float), result=SimpleNamespace(covariance=None, overlap=1.0)
     )
+    return maintainer
+
+
+def test_a_robot_that_just_moved_into_a_location_is_not_moved_straight_back():
+    """Navigating, between two locations that both verify the robot (here every match does): once
+    moved from location 0 into 1, no move along the edge back into 0 before the robot has driven
+    ``shuttle_guard`` metres (moved back and forth at every update, each move a plan in another
+    frame, a robot turned on the spot until it was stuck); after that, as before."""
+    maintainer = _agreeing_maintainer([(0.0, 0.0), (3.0, 0.0)], [(0, 1)])
+    config = maintainer.config
     maintainer.start_at(0, np.array([1.6, 0.0, 0.0]), np.zeros(3))  # nearer to 1's position than to 0's
     assert maintainer._move_along_edge(None) and maintainer.current == 1
     assert not maintainer._move_along_edge(None) and maintainer.current == 1  # not straight back
     maintainer.integrate(np.array([config.shuttle_guard + 0.1, 0.0, 0.0]))  # driven on
     maintainer.pose_in_current = np.array([-1.6, 0.0, 0.0])
     assert maintainer._move_along_edge(None) and maintainer.current == 0
+
+
+def test_no_location_left_is_moved_back_into_along_an_edge_not_only_the_last():
+    """Three locations at one junction, each verifying the robot: 0 -> 1 -> 2, then not on to 0, left
+    a moment before (the last one left is 1); the robot went round 4 -> 5 -> 6 -> 4 at every update
+    (slam-ring 904, noisy, a `timeout` standing at the junction)."""
+    maintainer = _agreeing_maintainer([(0.0, 0.0), (3.0, 0.0), (1.5, 1.0)], [(0, 1), (1, 2), (0, 2)])
+    maintainer.start_at(0, np.array([2.0, 0.0, 0.0]), np.zeros(3))
+    assert maintainer._move_along_edge(None) and maintainer.current == 1  # the nearest neighbour
+    assert maintainer._move_along_edge(None) and maintainer.current == 2  # 0 just left: the other one
+    assert not maintainer._move_along_edge(None) and maintainer.current == 2  # both left a moment ago
