@@ -95,9 +95,10 @@ class MappingConfig(BaseModel):
     shuttle_guard: float = Field(
         1.0,
         ge=0,
-        description="navigating: after a move out of a location, no move along an edge back into it before the robot "
-        "has driven this far (m), for every location left (not only the last: three locations at one junction took "
-        "the robot round 4 -> 5 -> 6 -> 4 at every update); a location left is still taken along the route. A robot "
+        description="navigating: after a move out of a location, no move along an edge or re-localization back into "
+        "it before the robot has driven this far (m), for every location left (not only the last: three locations at "
+        "one junction took the robot round 4 -> 5 -> 6 -> 4 at every update); a location left is still taken along "
+        "the route. A robot "
         "between two locations, the new one not verifying it where it stands, was moved back and forth at every "
         "update, each move a plan in another frame, and turned on the spot until stuck or out of time",
     )
@@ -481,8 +482,7 @@ class GraphMaintainer:
         here = self.pose_in_current
         distance_to_current = float(np.hypot(here[0], here[1]))
         options = []
-        guard = 0.0 if self.mapping else self.config.shuttle_guard
-        just_left = {vertex for vertex, odometer in self._left.items() if self._odom.metres - odometer < guard}
+        just_left = self._just_left()
         for vertex, pose_uv in self.graph.neighbours(self.current):
             if vertex in just_left:
                 continue  # just left it: the robot stays here by odometry a little longer
@@ -502,6 +502,11 @@ class GraphMaintainer:
                 self.last_verified = True
                 return True
         return False
+
+    def _just_left(self) -> set[int]:
+        """Navigating, the locations the robot moved out of within the last ``shuttle_guard`` metres."""
+        guard = 0.0 if self.mapping else self.config.shuttle_guard
+        return {vertex for vertex, odometer in self._left.items() if self._odom.metres - odometer < guard}
 
     def _refine_edge(self, query: PreparedGrid, u: int, v: int, at_v: Localized) -> None:
         """Moving along an edge while mapping: the scan matched against both ends at once measures
@@ -736,7 +741,9 @@ class GraphMaintainer:
         if len(self.graph) == 0:
             return False
         descriptor = self.describe(points)
-        exclude = {self.current} if self.current is not None else set()
+        # navigating, not back into a location just left either (``shuttle_guard``): moved 6 -> 5 along
+        # the route and re-localized 5 -> 6 at every update, the robot stood at a junction till time ran out
+        exclude = ({self.current} | self._just_left()) if self.current is not None else set()
         hint, gates = None, None
         if self.mapping and self.current is not None:
             hint, gates = self._hint_gates(odom, self.localizer.config.drift_base)
