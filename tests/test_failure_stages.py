@@ -136,10 +136,10 @@ def test_the_baseline_that_finds_no_fit_on_its_map_in_time_fails_at_start_up(tin
 
 
 def test_the_baseline_driving_into_a_cabinet_its_map_lacks_fails_in_the_follower(tiny, sim, tmp_path):
-    """The boxes left out of the map and no return taken for a new obstacle: the path cuts the inner
-    corner of the L through the pillar or the cabinet, and the robot hits one."""
+    """The boxes left out of the map, no return taken for a new obstacle and no scan guard: the path
+    cuts the inner corner of the L through the pillar or the cabinet, and the robot hits one."""
     folder = _metric_map(tiny, tmp_path / "no_obstacles", obstacles=False)
-    system = _metric_grid(tiny, sim, folder, planning={"new_obstacle_distance": 50.0})
+    system = _metric_grid(tiny, sim, folder, planning={"new_obstacle_distance": 50.0, "scan_guard": False})
     record = _run(tiny, sim, "metric_grid", system, tiny.trials[0])
     assert (record.reason, record.failure_stage, record.collisions) == ("collision", "follower", 1)
     assert record.detail.startswith("collided at (") and "in the scenario frame" in record.detail

@@ -95,6 +95,9 @@ class PlanningConfig(BaseModel):
     block_check_distance: float = Field(5.0, gt=0, description="m of the path ahead checked against new obstacles")
     block_clearance: float = Field(0.05, ge=0, description="m beyond the robot radius; nearer new obstacles block")
     new_obstacle_distance: float = Field(0.25, gt=0, description="m from every mapped wall: an obstacle the map lacks")
+    scan_guard: bool = Field(
+        True, description="stop a path the scan shows touching a return and plan again (navkit.obstacles.scan_guard)"
+    )
     new_obstacle_range: float = Field(6.0, gt=0, description="m; only nearer returns can be new obstacles")
     progress_distance: float = Field(
         0.5, gt=0, description="m of odometry the robot must cover every progress_time (Nav2's progress checker)"

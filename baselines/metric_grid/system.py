@@ -341,7 +341,7 @@ class MetricGrid:
                 return Command()
         if not self._check_passage(obs, pose):
             return Command()  # the passage is shut to the robot: plan again at the next tick
-        if scan_guard(self.follower, self.obstacles.memory, pose, band, self.robot_radius):
+        if self.config.planning.scan_guard and scan_guard(self.follower, self.obstacles.memory, pose, band, self.robot_radius):
             # the scan shows the way ahead too near a return (``navkit.obstacles.scan_guard``)
             self.plan_counters["scan_guard_stops"] += 1
             self.follower.clear()
