@@ -381,7 +381,7 @@ class Navigator:
             self.counters["reached_short"] += 1
             self.status = NavStatus(Status.REACHED, detail=self._reached_detail("short of the goal (no room at it) in"))
             return Command()
-        self._remember_obstacles(obs, vertex, pose)
+        band = self._remember_obstacles(obs, vertex, pose)
         if tentative:
             # the hypothesis may be another place's map: what the scan shows on the way is an obstacle
             hits = self.explorer.scan_on_path(obs, pose)
@@ -393,7 +393,7 @@ class Navigator:
                 return Command()
         if not self._check_passage(obs, pose):
             return Command()  # the passage is shut to the robot: plan again at the next tick
-        if self._guard_stops(obs, pose):
+        if self._guard_stops(band, pose):
             return Command()  # the scan shows the way ahead too near a return: plan again round it
         if not tentative and self._stuck(obs, pose):
             return Command()
@@ -657,11 +657,10 @@ class Navigator:
             self.counters["passages_centred"] += 1
         return True
 
-    def _guard_stops(self, obs: Observation, pose: NDArray) -> bool:
-        """The scan guard (``navkit.obstacles.scan_guard``): True when returns the way ahead comes too
-        near to were marked and the path dropped (plan again)."""
-        points = obstacle_points(obs.points, self.maintainer.grid_config)
-        if not scan_guard(self.follower, self.obstacles, pose, points, self.robot_radius):
+    def _guard_stops(self, band: NDArray, pose: NDArray) -> bool:
+        """The scan guard (``navkit.obstacles.scan_guard``) on this scan's obstacle band (robot frame):
+        True when returns the way ahead comes too near to were marked and the path dropped (plan again)."""
+        if not scan_guard(self.follower, self.obstacles, pose, band, self.robot_radius):
             return False
         self.counters["scan_guard_stops"] += 1
         self._path_vertex = None
@@ -675,8 +674,9 @@ class Navigator:
 
     # -- new obstacles and progress ---------------------------------------------------------------------
 
-    def _remember_obstacles(self, obs: Observation, vertex: int, pose: NDArray) -> None:
-        """Mark the scan's returns no mapped wall explains, clear those it sees through (in v_cur's frame)."""
+    def _remember_obstacles(self, obs: Observation, vertex: int, pose: NDArray) -> NDArray:
+        """Mark the scan's returns no mapped wall explains, clear those it sees through (in v_cur's frame);
+        the scan's obstacle band (robot frame), for the scan guard of the same tick."""
         if self._obstacle_vertex is not None and self._obstacle_vertex != vertex and len(self.obstacles):
             # into the new location's frame, through the edge between them (or forget them)
             if self.graph.has_edge(self._obstacle_vertex, vertex):
@@ -688,6 +688,7 @@ class Navigator:
         new = self.local.new_obstacles(self.unions.get(vertex), pose, points)
         self.obstacles.update(pose, points, new, self.local.config.new_obstacle_range)
         self._latest_new = new
+        return points
 
     def _recent_obstacles(self) -> NDArray[np.float64]:
         return self.obstacles.points
