@@ -33,7 +33,7 @@ def evaluate(run: Path, variant: dict) -> dict:
     graph = system.graph
     truth = [anchors[round(v.stamp, 6)] for v in graph.vertices]
     before = {(u, v) for u, v, _ in graph.edges()}
-    added = system.maintainer.add_shortcuts(system.navigator.local.tight)
+    added = system.maintainer.add_shortcuts(system.navigator.local.way_between)
     wrong = []
     for u, v, pose in graph.edges():
         if (u, v) in before:

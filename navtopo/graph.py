@@ -114,6 +114,10 @@ class TopologicalGraph:
         pose = self._adjacency[u][v]
         self._lengths[(min(u, v), max(u, v))] = max(float(metres), math.hypot(pose[0], pose[1]))
 
+    def clear_edge_lengths(self) -> None:
+        """Every edge weighed by its translation again, as before mapping's end measured them."""
+        self._lengths.clear()
+
     def edge_length(self, u: int, v: int) -> float:
         """Dijkstra's weight of the edge: its measured length, else its translation's."""
         measured = self._lengths.get((min(u, v), max(u, v)))

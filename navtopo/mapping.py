@@ -39,29 +39,32 @@ kept only as hints.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from navkit import grid_search
 from navkit.geometry import (
     between,
     compose,
     compose_with_covariance,
-    inverse,
     inverse_with_covariance,
     wrap_angle,
 )
 from navkit.odometer import Odometer
-from navkit.raster import FREE, UNKNOWN, inside
+from navkit.raster import UNKNOWN
 from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import hint_chain
-from navtopo.local_grid import CroppedGrid, overlap, warp
+from navtopo.local_grid import CroppedGrid, overlap
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
+
+# the way (m) a robot drives from location u's observation point to v's, v at the pose given in u's
+# frame, or None: the navigator's local planner (``planning.LocalPlanner.way_between``)
+WayBetween = Callable[[TopologicalGraph, int, int, NDArray[np.float64]], "float | None"]
 
 
 class MappingConfig(BaseModel):
@@ -607,7 +610,7 @@ class GraphMaintainer:
             self._measure_edge(self.current, vertex, pose_cv, covariance_cv)
             self.counters.closures_from_inside += 1
 
-    def add_shortcuts(self, clearance: float) -> int:
+    def add_shortcuts(self, way: WayBetween) -> int:
         """Mapping's end: join locations that lie near each other but that the graph joins only the
         long way round (two corridors' locations met at a junction from different sides, a dead end
         driven into and out of without reaching the junction's location). A route between them went
@@ -619,9 +622,9 @@ class GraphMaintainer:
         hints (the verdict with a guess: two locations a few metres apart share a fifth of their
         known area, too little for the strict one). The edge is made when the match fixes the pose
         (``shortcut_max_sigma``), the two grids united show a way between the two observation points
-        through known free space at least ``clearance`` (m) from the rest, at most ``shortcut_detour``
-        times the straight line (the edge's length, Dijkstra's weight, is then the way's within
-        that), and it agrees with the graph's way round
+        (``way``: the navigator's local planner through their known free space), at most
+        ``shortcut_detour`` times the straight line (the edge's length, Dijkstra's weight, is then the
+        way's within that), and it agrees with the graph's way round
         (``_edge_acceptable``: the loop-closure check against look-alike places). Returns the count."""
         config = self.config
         if config.shortcut_radius is None or len(self.graph) < 2:
@@ -664,9 +667,9 @@ class GraphMaintainer:
                 off = between(guess, located.pose)
                 if gated and float(np.hypot(off[0], off[1])) > config.shortcut_hint_agreement:
                     continue  # the hints are a few decimetres off at most: a match farther slid
-                way = self._way_between(u, v, located.pose, clearance)
+                length = way(self.graph, u, v, located.pose)
                 straight = float(np.hypot(located.pose[0], located.pose[1]))
-                if way is None or way > config.shortcut_detour * straight + 2 * self.grid_config.resolution:
+                if length is None or length > config.shortcut_detour * straight + 2 * self.grid_config.resolution:
                     continue
                 if not self._edge_acceptable(u, v, located.pose, covariance):
                     continue
@@ -675,40 +678,20 @@ class GraphMaintainer:
                 added += 1
         return added
 
-    def measure_edges(self, clearance: float) -> int:
-        """Mapping's end: each edge's length as the robot drives it (``_way_between``, the way through
-        the two grids' known free space ``clearance`` from the rest), Dijkstra's weight from then on:
-        a route that turns round a wall corner or goes through a door is longer than its straight
-        edges, and two routes are compared by what driving them takes. An edge with no such way
-        (its two grids do not show one) keeps its straight length. Returns the count measured."""
+    def measure_edges(self, way: WayBetween) -> int:
+        """Mapping's end: each edge's length as the robot drives it (``way``: the navigator's local
+        planner through the two grids' known free space), Dijkstra's weight from then on: a route that
+        turns round a wall corner or goes through a door is longer than its straight edges, and two
+        routes are compared by what driving them takes. An edge with no such way (its two grids do
+        not show one) keeps its straight length. Returns the count measured."""
         measured = 0
         for u, v, pose in self.graph.edges():
-            way = self._way_between(u, v, pose, clearance)
-            if way is not None:
-                self.graph.set_edge_length(u, v, way)
+            length = way(self.graph, u, v, pose)
+            if length is not None:
+                self.graph.set_edge_length(u, v, length)
                 measured += 1
         self.counters.edges_measured = measured
         return measured
-
-    def _way_between(self, u: int, v: int, pose_uv: NDArray[np.float64], clearance: float) -> float | None:
-        """The length (m) of the shortest way from u's observation point to v's (at ``pose_uv`` in u's
-        frame) through the known free space of the two grids united in u's frame, at least
-        ``clearance`` (m, centre to centre) from every cell neither knows free (``grid_search``'s
-        jump point search, pulled to any angle); None if there is none."""
-        config = self.grid_config
-        res = config.resolution
-        frame = grid_frame(config)
-        united = np.maximum(
-            self.graph.vertices[u].grid.to_grid(), warp(self.graph.vertices[v].grid.to_grid(), inverse(pose_uv), config)
-        )
-        free = grid_search.passable(grid_search.clearance_squared(united == FREE), clearance, res)
-        ends = frame.to_cell(np.array([[0.0, 0.0], pose_uv[:2]]))
-        if not inside(ends, free.shape).all():
-            return None
-        path = grid_search.jps_smoothed(free, ends[0], ends[1])
-        if path is None:
-            return None
-        return float(np.hypot(*np.diff(path, axis=0).T).sum()) * res
 
     def _hint_gates(self, odom: NDArray[np.float64], base: float) -> tuple[NDArray[np.float64], dict[int, float]]:
         """Mapping: the robot's pose by odometry and, for each vertex it may be near, how far that

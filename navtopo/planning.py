@@ -306,19 +306,27 @@ class UnionGrid:
 
 
 def build_union_grid(
-    graph: TopologicalGraph, vertex: int, grid_config: GridConfig, radius: float, align: bool = True
+    graph: TopologicalGraph,
+    vertex: int,
+    grid_config: GridConfig,
+    radius: float,
+    align: bool = True,
+    members: list[tuple[int, NDArray[np.float64]]] | None = None,
 ) -> UnionGrid:
     """``vertex``'s grid and its neighbours', warped into its frame by the edges (see the module
-    docstring); with ``align``, into its frame turned so that the walls run along the grid's axes."""
+    docstring); with ``align``, into its frame turned so that the walls run along the grid's axes.
+    ``members``: other locations instead of the neighbours, each with its pose in ``vertex``'s frame
+    (two locations a shortcut would join)."""
     size = 2 * int(round(radius / grid_config.resolution))
     res = grid_config.resolution
-    placed = [(graph.vertices[m].grid, pose) for m, pose in [(vertex, np.zeros(3)), *graph.neighbours(vertex)]]
+    others = graph.neighbours(vertex) if members is None else members
+    placed = [(graph.vertices[m].grid, pose) for m, pose in [(vertex, np.zeros(3)), *others]]
     yaw = union_yaw(placed) if align else 0.0
     # warp(grid, T) is the grid seen from frame T given in the grid's own frame: the union's axes
     # (``vertex``'s origin, turned by ``yaw``) lie at inverse(T_vertex_member) (0, 0, yaw) in ``member``'s frame
     axes = np.array([0.0, 0.0, yaw])
-    members = [(grid, compose(inverse(pose), axes)) for grid, pose in placed]
-    boxes = np.array([warped_bounds(grid, pose, res, size, margin=3) for grid, pose in members]).reshape(-1, 4)
+    warped = [(grid, compose(inverse(pose), axes)) for grid, pose in placed]
+    boxes = np.array([warped_bounds(grid, pose, res, size, margin=3) for grid, pose in warped]).reshape(-1, 4)
     boxes = boxes[(boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])]
     if not len(boxes):
         return UnionGrid(vertex, np.zeros((1, 1), np.uint8), GridFrame(np.zeros(2), res), yaw)
@@ -326,7 +334,7 @@ def build_union_grid(
     # canvas's 2 * radius / resolution): a location's union grid cost ~1.2 ms, now a few tenths
     window = (int(boxes[:, 0].min()), int(boxes[:, 1].max()), int(boxes[:, 2].min()), int(boxes[:, 3].max()))
     cells = np.full((window[1] - window[0], window[3] - window[2]), UNKNOWN, np.uint8)
-    for grid, pose in members:
+    for grid, pose in warped:
         # UNKNOWN < FREE < OCCUPIED: the largest value is the union (a wall seen from any location stands)
         np.maximum(cells, warp_window(grid, pose, res, size, window), out=cells)
     known_rows = np.flatnonzero((cells != UNKNOWN).any(axis=1))
@@ -508,10 +516,31 @@ class LocalPlanner:
     ) -> NDArray[np.int64] | None:  # plan_path's ``Search``: the configured one on every level
         return grid_search.SEARCHES[self.config.search](passable, start, goal, sight)
 
-    def plan(self, union: UnionGrid, start: NDArray, target: NDArray, blocked_xy: NDArray | None = None) -> PlannedPath | None:
+    def way_between(self, graph: TopologicalGraph, u: int, v: int, pose_uv: NDArray[np.float64]) -> float | None:
+        """The length (m) of the way this planner drives from u's observation point to v's (at
+        ``pose_uv`` in u's frame) through the known free space of the two locations' grids united,
+        or None if there is none: an edge's length as Dijkstra weighs it, and whether a shortcut
+        between two locations can be driven (``mapping.GraphMaintainer``). The same levels and end
+        snapping as a local plan: a location made in a doorway, its observation point nearer a jamb
+        than the clearance, has its way (a way searched from that cell alone had none for a third of
+        office02's edges)."""
+        union = build_union_grid(
+            graph, u, self.grids.grid_config, self.config.union_radius, self.config.align_walls, members=[(v, pose_uv)]
+        )
+        planned = self.plan(union, np.zeros(3), np.asarray(pose_uv, dtype=np.float64)[:2], known_only=True)
+        return None if planned is None else planned.length
+
+    def plan(
+        self,
+        union: UnionGrid,
+        start: NDArray,
+        target: NDArray,
+        blocked_xy: NDArray | None = None,
+        known_only: bool = False,
+    ) -> PlannedPath | None:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
         if there is none, or only ones through unknown cells far round (``unknown_detour``: such a way
-        found on one level is passed over for the next).
+        found on one level is passed over for the next). ``known_only``: no level through unknown cells.
 
         The levels are tried in order (``navkit.grid_planning.plan_path`` on each): a level whose
         snapped start and goal lie in different parts of its passable cells (4-connected, as the
@@ -532,6 +561,8 @@ class LocalPlanner:
         no_wall = union.cells != OCCUPIED
         planned = None
         for level, (kind, radius, medial) in enumerate(self.levels):
+            if known_only and kind != "known":
+                break
             passable = _passable(union, kind, radius, medial, blocked_xy)
             start_cell = grid_search.nearest_free(passable, end_cells[0], snap, no_wall)
             goal_cell = grid_search.nearest_free(passable, end_cells[1], snap, no_wall)

@@ -158,10 +158,10 @@ class NavTopo:
                 vertex.lidar_hint = pose.copy()
 
     def finish_mapping(self) -> None:
-        # shortcuts: a straight line clear for the robot as the planner's tightest level asks
-        self.maintainer.add_shortcuts(self.navigator.local.tight)
-        # every edge's length as the robot would drive it, at the same clearance: Dijkstra's weights
-        self.maintainer.measure_edges(self.navigator.local.tight)
+        # shortcuts where the local planner finds a way; every edge's length as it would drive it
+        # (Dijkstra's weights)
+        self.maintainer.add_shortcuts(self.navigator.local.way_between)
+        self.maintainer.measure_edges(self.navigator.local.way_between)
 
     def save(self, directory: Path) -> None:
         self.graph.save(Path(directory), extra={"navtopo_config": self.config.model_dump(mode="json")})

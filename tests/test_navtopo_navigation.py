@@ -95,6 +95,40 @@ def test_the_union_grid_of_two_locations_lines_up_with_ground_truth(tiny):
     assert np.mean(near <= 0.11) >= 0.85  # the rest within a cell, but for what one of them sees past (low furniture)
 
 
+def test_an_edge_from_a_location_by_a_wall_has_the_way_the_local_planner_drives():
+    """A location whose grid draws a wall 0.1 m from it (a jamb a scan drew a cell into the
+    doorway: nearer than the planner's clearance) and one 4 m along: ``LocalPlanner.way_between`` snaps the end off the wall
+    as a local plan does and finds the way, about the straight line; a wall across the corridor
+    between them leaves none."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    frame = grid_frame(GRID)
+
+    def corridor(pose, shut: bool) -> np.ndarray:
+        # a corridor along x (free y in [-0.1, 1.2] in the scenario frame), seen from ``pose``
+        xy = se2.transform_points(pose, frame.centres(np.ones((GRID.size, GRID.size), bool)))
+        cells = np.full(GRID.size * GRID.size, UNKNOWN, np.uint8)
+        inside = (np.abs(xy[:, 0] - 2.0) < 5.0) & (xy[:, 1] > -0.1) & (xy[:, 1] < 1.2)
+        band = ((xy[:, 1] > -0.3) & (xy[:, 1] <= -0.1)) | ((xy[:, 1] >= 1.2) & (xy[:, 1] < 1.4))
+        walls = (np.abs(xy[:, 0] - 2.0) < 5.0) & band
+        cells[inside] = FREE
+        cells[walls] = OCCUPIED
+        if shut:
+            cells[inside & (np.abs(xy[:, 0] - 2.0) < 0.15)] = OCCUPIED
+        return cells.reshape(GRID.size, GRID.size)
+
+    poses = [[0.0, 0.0, 0.0], [4.0, 0.6, 0.4]]
+    for shut, expected in ((False, True), (True, False)):
+        graph = _graph(poses, [(0, 1)], [corridor(np.array(p), shut) for p in poses])
+        config = PlanningConfig()
+        planner = LocalPlanner(UnionGrids(graph, GRID, config), 0.25, config)
+        assert not graph.vertices[0].grid.to_grid()[tuple(frame.to_cell(np.zeros((1, 2)))[0])] == OCCUPIED
+        way = planner.way_between(graph, 0, 1, se2.between(poses[0], poses[1]))
+        assert (way is not None) == expected, way
+        if expected:
+            assert np.hypot(4.0, 0.6) <= way <= np.hypot(4.0, 0.6) + 0.3, way
+
+
 def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_space():
     """One clearance transform a kind serves every radius: each mask is ``passable`` on that kind's
     free cells (``inflate_free``, cells that touch only diagonally joined), and ``fits`` at a point
