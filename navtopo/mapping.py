@@ -152,9 +152,12 @@ class MappingConfig(BaseModel):
         gt=0,
         description="mapping's end: locations whose hints (the lidar odometry's where the wheels drift) lie within "
         "this (m, plus the drift the odometry between their making explains) that the graph joins only the long way "
-        "round (loop_ratio) are matched; where the match is sure (shortcut_max_sigma), agrees with the graph's way "
+        "round (shortcut_ratio) are matched; where the match is sure (shortcut_max_sigma), agrees with the graph's way "
         "round (closure_gate) and their grids show a way for the robot between them (shortcut_detour), they are "
         "joined. None: no shortcuts",
+    )
+    shortcut_ratio: float = Field(
+        2.0, gt=1, description="... the graph's way between them longer than this times their distance (the long way round)"
     )
     shortcut_max_sigma: float = Field(0.25, gt=0, description="... each match fixing the pose to this (m, largest axis)")
     shortcut_hint_agreement: float = Field(
@@ -618,7 +621,7 @@ class GraphMaintainer:
 
         Pairs whose hints (``graph_poses.hint_chain``: the lidar odometry's where the wheels drift)
         lie within ``shortcut_radius`` (plus what drift explains) and
-        whose graph path is ``loop_ratio`` times longer are matched grid against grid, seeded by the
+        whose graph path is ``shortcut_ratio`` times longer are matched grid against grid, seeded by the
         hints (the verdict with a guess: two locations a few metres apart share a fifth of their
         known area, too little for the strict one). The edge is made when the match fixes the pose
         (``shortcut_max_sigma``), the two grids united show a way between the two observation points
@@ -649,7 +652,7 @@ class GraphMaintainer:
                 guess = between(hints[u], hints[v])
                 distance = float(np.hypot(guess[0], guess[1]))
                 path, path_length = self.graph.shortest_path(u, v)
-                if path is not None and path_length < config.loop_ratio * max(distance, 1.0):
+                if path is not None and path_length < config.shortcut_ratio * max(distance, 1.0):
                     continue
                 self.counters.matches += 1
                 located = self.localizer.verify(
