@@ -129,6 +129,34 @@ def test_an_edge_from_a_location_by_a_wall_has_the_way_the_local_planner_drives(
             assert np.hypot(4.0, 0.6) <= way <= np.hypot(4.0, 0.6) + 0.3, way
 
 
+@pytest.mark.parametrize("wall_beside", [False, True])
+def test_a_robot_in_cells_no_location_saw_goes_straight_to_its_goal_not_back_to_the_known_space(wall_beside):
+    """Known free space is a corridor (y in [0, 2.5]); the robot stands at y = 2.6 in unknown cells (a
+    room no location saw) and its goal 0.35 m on at y = 2.95. The known level snaps the start back to
+    the corridor; with nothing mapped beside the straight way the path goes straight on (it turned
+    back to the corridor at every plan and ran out of time short of the goal), with a mapped wall
+    beside the robot the way keeps through the snapped cell."""
+    from navkit.raster import GridFrame
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrid, UnionGrids
+
+    res = 0.1
+    cells = np.full((60, 100), UNKNOWN, np.uint8)  # x in [0, 10], y in [0, 6]
+    cells[:25, :] = FREE
+    if wall_beside:
+        cells[25:27, 52:54] = OCCUPIED  # 0.2 m beside the robot, 0.3 m from its goal
+    union = UnionGrid(0, cells, GridFrame(np.zeros(2), res))
+    config = PlanningConfig()
+    planner = LocalPlanner(UnionGrids(_graph([[0, 0, 0]], []), GRID, config), 0.25, config)
+    start, goal = np.array([5.0, 2.6, np.pi / 2]), np.array([5.0, 2.95])
+    path = planner.plan(union, start, goal)
+    assert path is not None
+    assert np.allclose(path.points[0], start[:2]) and np.allclose(path.points[-1], goal)
+    if wall_beside:
+        assert path.level == 0 and len(path.points) >= 3 and path.points[1, 1] < 2.5  # back into the corridor first
+    else:
+        assert path.level == 0 and len(path.points) == 2 and path.length == pytest.approx(0.35)
+
+
 def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_space():
     """One clearance transform a kind serves every radius: each mask is ``passable`` on that kind's
     free cells (``inflate_free``, cells that touch only diagonally joined), and ``fits`` at a point
