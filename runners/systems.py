@@ -227,8 +227,14 @@ class Oracle:
         # cell: the tight level keeps that much beyond the radius (door jambs' corners; BENCHMARKS.md,
         # "Design choices: the oracle's tight level": on a generated ring with 0.8 m doors it collided in
         # 8 of 11 trials without it)
-        self.passable_tight = self.world.eroded(context.robot.radius + self.world.resolution * np.sqrt(0.5))
+        self.tight = context.robot.radius + self.world.resolution * np.sqrt(0.5)
+        self.passable_tight = self.world.eroded(self.tight)
         self.passable = self.world.eroded(context.robot.radius + config.clearance_margin)
+        self.prefer = context.robot.radius + config.clearance_margin
+        # a path on the tight level is eased toward the margin where there is room (``ease_path``):
+        # through a door of the robot's width and a little more it passed a jamb's corner 0.02 m
+        # beyond the radius, and the follower's deviation touched it (loop_office_door, trial 1)
+        self.clearance = np.minimum(grid_search.clearance_squared(self.world.free), 255).astype(np.uint8)
         self.follower = PathFollower(config.follower.for_robot(context))
         self.status = NavStatus()
         self.goal_world: NDArray[np.float64] | None = None
@@ -266,7 +272,8 @@ class Oracle:
 
     def memory(self) -> MemoryBreakdown:
         """The GT raster is the oracle's map; its two eroded copies are derived for planning."""
-        return MemoryBreakdown(map=int(self.world.free.nbytes), derived=int(self.passable.nbytes + self.passable_tight.nbytes))
+        derived = self.passable.nbytes + self.passable_tight.nbytes + self.clearance.nbytes
+        return MemoryBreakdown(map=int(self.world.free.nbytes), derived=int(derived))
 
     # navigation
     def reset(self) -> None:
@@ -308,7 +315,18 @@ class Oracle:
     def _plan(self, start_xy: NDArray) -> NDArray[np.float64] | None:
         assert self.goal_world is not None
         frame = GridFrame(self.world.origin, self.world.resolution)
-        planned = plan_path([self.passable, self.passable_tight], frame, start_xy, self.goal_world, snap_cells=10)
+        planned = plan_path([self.passable], frame, start_xy, self.goal_world, snap_cells=10)
+        if planned is None:
+            planned = plan_path(
+                [self.passable_tight],
+                frame,
+                start_xy,
+                self.goal_world,
+                snap_cells=10,
+                clearance=self.clearance,
+                prefer_m=self.prefer,
+                hold_m=self.tight,
+            )
         return planned.points if planned is not None else None
 
     def stats(self) -> dict[str, Any]:

@@ -126,3 +126,30 @@ def test_fallback_levels_snapping_and_exact_ends():
 
     assert plan_path(mask, frame, start, goal, levels=3).level == 1 and built == [0, 1]
     assert plan_path([walled], frame, start, goal) is None
+
+
+def test_the_oracle_passes_a_door_of_little_more_than_its_width_through_the_middle():
+    """A door 0.8 m wide (0.1 m beyond the 0.3 m radius on each side: no path at the oracle's
+    0.15 m margin) met on a diagonal: the tight level's path, eased toward the margin, keeps at
+    least 0.07 m beyond the radius from the jambs, where the shortest one cut the corner at 0.035 m
+    and the follower's deviation touched it (loop_office_door, trial 1)."""
+    from navkit.grid_planning import densify as dense
+    from scenarios.world import World
+
+    res = 0.05
+    free = np.ones((120, 120), bool)  # 6 m x 6 m
+    free[[0, -1], :] = free[:, [0, -1]] = False
+    free[:, 59:61] = False  # a wall at x = 3 m
+    free[52:68, 59:61] = True  # its door: y in [2.6, 3.4]
+    world = World(res, np.zeros(2), free, free.copy(), np.zeros((0, 2, 2)), 2.6, True)
+    tiny = load_scenario("tiny")
+    robot = tiny.spec.robot.model_copy(update={"radius": 0.3})
+    truth = GroundTruth(world=world, world_from_map=np.zeros(3))
+    entry = get_system("oracle")
+    oracle = entry.create(entry.default_config(), SystemContext(robot=robot, sensor=tiny.spec.sensor, ground_truth=truth))
+    oracle.goal_world = np.array([5.0, 5.2])
+    path = oracle._plan(np.array([1.0, 0.8]))
+    assert path is not None
+    points = dense(path, res / 2)
+    clearance = world.clearance[tuple(np.floor(points[:, ::-1] / res).astype(int).T)]
+    assert clearance.min() >= 0.3 + 0.07, clearance.min()
