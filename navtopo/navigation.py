@@ -470,7 +470,7 @@ class Navigator:
             positions = path_positions(self.graph, route)
             goal_point = transform_points(positions[-1], self.goal.pose[None])
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
-            union = self.unions.get(vertex)
+            union = self.unions.get(vertex, self.unions.window(route, positions))
             if not tentative and self._shut_ahead(obs, union, pose, route, points):
                 continue  # the edge is gone: the route again, round it
             target, planned = self._local_path(union, pose, vertex, route, points)

@@ -60,6 +60,13 @@ class PlanningConfig(BaseModel):
     inflation_margin: float = Field(0.1, ge=0, description="beyond the robot radius and half a cell; as the baseline's")
     union_radius: float = Field(25.0, gt=0, description="half the side of the union grid's canvas")
     union_cache: int = Field(3, ge=1, description="union grids kept (an LRU cache over the neighbourhood)")
+    window_m: float = Field(
+        0.0,
+        ge=0,
+        description="m of the route ahead whose locations join the current location's union grid beside its "
+        "neighbours (placed along the route's edges, within union_radius): the lookahead reaches past the "
+        "neighbours and a new obstacle ahead is checked against their grids; 0: the neighbours alone (the paper's)",
+    )
     search: Literal["astar", "jps", "theta_star"] = Field(
         "jps",
         description="the local search (navkit.grid_search.SEARCHES, the baseline's): jump point search string-pulled "
@@ -362,6 +369,10 @@ def union_yaw(placed: list[tuple[CroppedGrid, NDArray[np.float64]]]) -> float:
     return mean_direction(angles, [weight for _, weight in directions])
 
 
+# locations of the route ahead joined to a union grid: (vertex, its pose in the current location's frame)
+Window = tuple[tuple[int, tuple[float, float, float]], ...]
+
+
 class UnionGrids:
     """Union grids of the locations visited lately (an LRU cache).
 
@@ -373,24 +384,42 @@ class UnionGrids:
         self.graph = graph
         self.grid_config = grid_config
         self.config = config
-        self._cache: OrderedDict[int, UnionGrid] = OrderedDict()
+        self._cache: OrderedDict[tuple[int, tuple[int, ...]], UnionGrid] = OrderedDict()
         self._build_ms = 0.0
 
-    def get(self, vertex: int) -> UnionGrid:
-        union = self._cache.get(vertex)
+    def get(self, vertex: int, ahead: Window = ()) -> UnionGrid:
+        """``vertex``'s union grid: its neighbours' grids, and those of ``ahead`` (locations of the
+        route ahead with their poses in ``vertex``'s frame, ``window``)."""
+        key = (vertex, tuple(member for member, _ in ahead))
+        union = self._cache.get(key)
         if union is None:
             started = time.perf_counter()
-            union = build_union_grid(self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls)
+            members = None
+            if ahead:
+                near = {vertex, *(member for member, _ in self.graph.neighbours(vertex))}
+                extra = [(member, np.asarray(pose, dtype=np.float64)) for member, pose in ahead if member not in near]
+                members = [*self.graph.neighbours(vertex), *extra]
+            union = build_union_grid(
+                self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls, members
+            )
             self._build_ms += (time.perf_counter() - started) * 1e3
-            self._cache[vertex] = union
+            self._cache[key] = union
             if len(self._cache) > self.config.union_cache:
                 self._cache.popitem(last=False)
         else:
-            self._cache.move_to_end(vertex)
+            self._cache.move_to_end(key)
         return union
 
-    def cached(self, vertex: int) -> bool:
-        return vertex in self._cache
+    def window(self, route: list[int], positions: NDArray[np.float64]) -> Window:
+        """The locations of ``route`` (from the current one) within ``window_m`` along it and
+        ``union_radius`` of the current one, each with its position (``path_positions``), for ``get``."""
+        reach = self.config.window_m
+        if reach <= 0 or len(route) < 3:
+            return ()
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(positions[:, :2], axis=0).T))])
+        keep = (along <= reach) & (np.hypot(positions[:, 0], positions[:, 1]) <= self.config.union_radius)
+        keep[0] = False
+        return tuple((int(route[i]), (float(p[0]), float(p[1]), float(p[2]))) for i, p in enumerate(positions) if keep[i])
 
     def take_build_ms(self) -> float:
         """Milliseconds spent building union grids since the last call."""

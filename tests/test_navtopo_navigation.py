@@ -157,6 +157,28 @@ def test_a_robot_in_cells_no_location_saw_goes_straight_to_its_goal_not_back_to_
         assert path.level == 0 and len(path.points) == 2 and path.length == pytest.approx(0.35)
 
 
+def test_a_window_joins_the_routes_locations_ahead_to_the_union_grid():
+    """Five locations 5 m apart along a corridor, each grid knowing 3 m round it: the current
+    location's union grid knows its neighbour's cells (to 8 m) and, with a 16 m window along the
+    route, the next two locations' too (to 18 m), each placed where it lies; none past the window."""
+    from navtopo.planning import PlanningConfig, UnionGrids, path_positions
+
+    frame = grid_frame(GRID)
+    centres = frame.centres(np.ones((GRID.size, GRID.size), bool))
+    near = np.hypot(centres[:, 0], centres[:, 1]) <= 3.0
+    grid = np.where(near, FREE, UNKNOWN).astype(np.uint8).reshape(GRID.size, GRID.size)
+    poses = [[5.0 * i, 0.0, 0.3 * i] for i in range(5)]
+    graph = _graph(poses, [(i, i + 1) for i in range(4)], [grid] * 5)
+    route = [0, 1, 2, 3, 4]
+    positions = path_positions(graph, route)
+    probes = np.array([[7.5, 0.0], [12.5, 0.0], [17.5, 0.0], [22.5, 0.0]])  # beyond each location's 3 m
+    for window, known in ((0.0, [True, False, False, False]), (16.0, [True, True, True, False])):
+        unions = UnionGrids(graph, GRID, PlanningConfig(window_m=window))
+        union = unions.get(0, unions.window(route, positions))
+        seen = union.values_at(probes, union.cells, UNKNOWN) == FREE
+        assert seen.tolist() == known, (window, seen)
+
+
 def test_the_union_grids_masks_and_point_checks_are_the_erosion_of_its_free_space():
     """One clearance transform a kind serves every radius: each mask is ``passable`` on that kind's
     free cells (``inflate_free``, cells that touch only diagonally joined), and ``fits`` at a point
