@@ -4,8 +4,9 @@ Development and tuning happen on such scenes, with seeds apart from the benchmar
 bundled benchmark scene (docs/NOTES.md, "Tuning rule"). Kinds:
 
     tree, ring, lattice        shape buildings (scenarios.generators, scenarios.lattice)
+    hall                       an open hall with rows of racks, a warehouse (scenarios.hall)
     slam-ring, slam-tree,      the same drawn as a robot's SLAM map (scenarios.slam_like): a PGM +
-    slam-lattice               YAML map beside the scenario (<output stem>_map.*), the building's
+    slam-lattice, slam-hall    YAML map beside the scenario (<output stem>_map.*), the building's
                                route (one tour) and trials; --artefacts changes the amounts
     aliased-wing               identical rooms along one or two corridors (--rooms a row, --corridors)
     aliased-ring               a ring whose --sides (2 or 4) look the same (--rooms a side)
@@ -40,13 +41,25 @@ import yaml
 from _tuning import BENCHMARK_SEEDS
 
 from navkit.errors import BenchError
-from scenarios import aliased, generators, lattice
+from scenarios import aliased, generators, hall, lattice
 from scenarios.changes import with_shut_stretches
 from scenarios.schema import parse_spec
 from scenarios.slam_like import Artefacts, write_slam_scenario
 
 SHUT_KINDS = ["ring", "lattice", "mirror"]
-KINDS = ["tree", "ring", "lattice", "slam-ring", "slam-tree", "slam-lattice", "aliased-wing", "aliased-ring", "mirror"]
+KINDS = [
+    "tree",
+    "ring",
+    "lattice",
+    "hall",
+    "slam-ring",
+    "slam-tree",
+    "slam-lattice",
+    "slam-hall",
+    "aliased-wing",
+    "aliased-ring",
+    "mirror",
+]
 
 
 class Refused(Exception):
@@ -57,7 +70,10 @@ def arguments() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("kind", choices=KINDS)
     parser.add_argument(
-        "--length", type=float, default=140.0, help="total corridor length (m): tree, ring, lattice, slam-*, mirror"
+        "--length",
+        type=float,
+        default=140.0,
+        help="total corridor length (m): tree, ring, lattice, slam-*, mirror; the long side: hall",
     )
     parser.add_argument("--seed", type=int, default=201)
     parser.add_argument(
@@ -145,6 +161,8 @@ def shape_spec(args: argparse.Namespace, kind: str) -> dict:
         )
     if kind == "lattice":
         return lattice.lattice_building(args.length, seed=args.seed, trials=args.trials, **factor)
+    if kind == "hall":
+        return hall.hall_building(args.length, seed=args.seed, trials=args.trials, **factor)
     if kind == "aliased-wing":
         rooms = args.rooms if args.rooms is not None else 8
         return aliased.aliased_wing(rooms, seed=args.seed, corridors=args.corridors, trials=args.trials, **factor)
