@@ -56,7 +56,7 @@ def hall_building(
 def _racks(rng: np.random.Generator, width: float, depth: float) -> list[dict]:
     """Rows of racks along x between the two end strips, each broken by cross aisles."""
     ends = (float(rng.uniform(4.0, 7.0)), float(rng.uniform(4.0, 7.0)))  # free strips at x = 0 and x = width
-    racks = []
+    racks: list[dict] = []
     y = float(rng.uniform(2.4, 3.6))  # the first aisle, along the wall
     while True:
         rack = float(rng.uniform(1.0, 1.4))
@@ -79,7 +79,7 @@ def _racks(rng: np.random.Generator, width: float, depth: float) -> list[dict]:
 
 def _pillars(rng: np.random.Generator, width: float, depth: float, racks: list[dict]) -> list[dict]:
     step = float(rng.uniform(9.0, 12.0))
-    pillars = []
+    pillars: list[dict] = []
     for x in np.arange(step, width - 1.0, step):
         for y in np.arange(step, depth - 1.0, step):
             if all(_distance(racks_box, float(x), float(y)) >= PILLAR_CLEAR_M + PILLAR_M / 2 for racks_box in racks):
@@ -89,7 +89,7 @@ def _pillars(rng: np.random.Generator, width: float, depth: float, racks: list[d
 
 def _pallets(rng: np.random.Generator, width: float, depth: float, racks: list[dict]) -> list[dict]:
     """A few pallets in the end strips, clear of the racks and the walls by 1.5 m."""
-    pallets = []
+    pallets: list[dict] = []
     for _ in range(int(rng.integers(2, 6))):
         x = float(rng.choice([rng.uniform(1.5, 3.0), rng.uniform(width - 3.0, width - 1.5)]))
         y = float(rng.uniform(1.5, depth - 1.5))
