@@ -104,17 +104,24 @@ class Localizer:
         max_jump: float | None = None,
         strict: bool = False,
         min_wall_agreement: float | None = None,
+        guess_tolerance: float | None = None,
     ) -> Localized | None:
         """Match the current grid against one vertex; the robot's pose in it, or None. ``strict``:
         see ``scan_matching.match``; ``min_wall_agreement``: the verdict's with a guess, if not the
-        matcher's own.
+        matcher's own; ``guess_tolerance``: feature matches kept within this of the guess (m), if
+        not the matcher's ``guess_translation_tolerance``.
 
         With a guess, a match that shares little known area (below ``min_overlap``, the threshold
         without a guess) still says the place is right, but its pose is less sure than the guess
         (few walls in common fix the rotation poorly): the guess is kept as the pose."""
         matching = self.matching
+        overrides: dict[str, float] = {}
         if min_wall_agreement is not None:
-            matching = matching.model_copy(update={"min_wall_agreement": min_wall_agreement})
+            overrides["min_wall_agreement"] = min_wall_agreement
+        if guess_tolerance is not None:
+            overrides["guess_translation_tolerance"] = guess_tolerance
+        if overrides:
+            matching = matching.model_copy(update=overrides)
         result = match(
             self.grids.get(vertex),
             query,

@@ -661,6 +661,10 @@ class GraphMaintainer:
                     guess,
                     config.max_neighbour_jump + float(drift[v]),
                     min_wall_agreement=config.shortcut_wall_agreement,
+                    # a match farther from the hints is refused below: its features are not
+                    # searched for (along a corridor a feature pose 1.9 m off outscored the right
+                    # one and the shortcut was lost; a generated lattice)
+                    guess_tolerance=config.shortcut_hint_agreement if gated else None,
                 )
                 if located is None or located.result.covariance is None:
                     continue
