@@ -37,7 +37,7 @@ from navkit.files import atomic_write
 from navkit.types import Observation
 from runners.route import RouteDrive
 from runners.sim import Simulator
-from scenarios import Scenario, generators
+from scenarios import Scenario, generators, hall
 from scenarios.scenario import build_scenario
 from scenarios.schema import parse_spec
 
@@ -59,8 +59,9 @@ DEFAULT_CACHE = Path("data/tuning")
 def generated_spec(kind: str, length: float, seed: int, setting: str, route_factor: float = 6.0) -> dict[str, Any]:
     """A scenario dict of a generated scene in one setting.
 
-    kind: ``tree`` (``generators.corridor_tree``) or ``ring`` (``generators.ring_building``, if
-    that generator exists in this revision).
+    kind: ``tree`` (``generators.corridor_tree``), ``ring`` (``generators.ring_building``, if
+    that generator exists in this revision) or ``hall`` (``hall.hall_building``: ``length`` its long
+    side, ``route_factor`` times its aisles' length).
     """
     if seed in BENCHMARK_SEEDS:
         raise SystemExit(f"seed {seed} is one of the benchmark's ({sorted(BENCHMARK_SEEDS)}): tune on other seeds")
@@ -73,8 +74,10 @@ def generated_spec(kind: str, length: float, seed: int, setting: str, route_fact
         if ring is None:
             raise SystemExit("scenarios.generators has no ring_building in this revision")
         spec = ring(length, seed, route_factor=route_factor, trials=1)
+    elif kind == "hall":
+        spec = hall.hall_building(length, seed, route_factor=route_factor, trials=1)
     else:
-        raise SystemExit(f"unknown scene kind {kind!r}: tree or ring")
+        raise SystemExit(f"unknown scene kind {kind!r}: tree, ring or hall")
     spec["name"] = f"{spec['name']}_{setting}"
     spec["description"] = f"{spec.get('description', '')}; tuning setting {setting}"
     spec["odometry"] = dict(SETTINGS[setting]["odometry"])
@@ -214,7 +217,7 @@ def replay_parser(description: str, kind: str, length: float, seeds: str, settin
     """The arguments every replay over recorded drives takes: the generated scenes, the drives'
     cache, candidate configs (``NAME=YAML`` overrides, read by ``candidates``) and a JSON copy."""
     parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--kind", default=kind, help="tree (corridor_tree) or ring (ring_building)")
+    parser.add_argument("--kind", default=kind, help="tree (corridor_tree), ring (ring_building) or hall (hall_building)")
     parser.add_argument("--length", type=float, default=length)
     parser.add_argument("--seeds", default=seeds, help="comma list; never the benchmark's")
     parser.add_argument("--settings", default=settings)
