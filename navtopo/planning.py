@@ -635,15 +635,17 @@ class LocalPlanner:
     def _straight_from_start(
         self, union: UnionGrid, points: NDArray[np.float64], blocked_xy: NDArray | None
     ) -> NDArray[np.float64]:
-        """The path without the cell its start snapped to, where the robot stands in cells no location
-        saw and the straight way from it to the point after keeps the tight clearance from every
-        mapped wall and new obstacle. A robot in a room no location saw into, entered for a goal in
-        it, had its start snapped back to the known free space behind it at every plan: it turned
-        round, drove back, turned again, and ran out of time 0.8 m from the goal (an aliased wing,
-        held out)."""
+        """The path without the cell its start snapped to, where that cell lies behind the robot
+        (away from the point after it), the robot stands in cells no location saw and the straight
+        way from it to the point after keeps the tight clearance from every mapped wall and new
+        obstacle. A robot in a room no location saw into, entered for a goal in it, had its start
+        snapped back to the known free space behind it at every plan: it turned round, drove back,
+        turned again, and ran out of time 0.8 m from the goal (an aliased wing, held out)."""
         resolution = union.frame.resolution
         if len(points) < 3 or float(np.hypot(*(points[1] - points[0]))) <= 1.5 * resolution:
             return points  # not snapped: the first cell is the robot's own
+        if float(np.dot(points[1] - points[0], points[2] - points[0])) >= 0.0:
+            return points  # the snapped cell lies on the way on: through it (a door met square)
         if union.values_at(points[:1], union.cells, UNKNOWN)[0] != UNKNOWN:
             # snapped in the known space (off a wall, out of a new obstacle's margin): the way out
             # stays (dropped, robots before a shut door drove on into it and turned back later)
