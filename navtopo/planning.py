@@ -396,9 +396,10 @@ class UnionGrids:
             started = time.perf_counter()
             members = None
             if ahead:
-                near = {vertex, *(member for member, _ in self.graph.neighbours(vertex))}
+                neighbours = self.graph.neighbours(vertex)
+                near = {vertex, *(member for member, _ in neighbours)}
                 extra = [(member, np.asarray(pose, dtype=np.float64)) for member, pose in ahead if member not in near]
-                members = [*self.graph.neighbours(vertex), *extra]
+                members = [*neighbours, *extra]
             union = build_union_grid(
                 self.graph, vertex, self.grid_config, self.config.union_radius, self.config.align_walls, members
             )
