@@ -90,6 +90,15 @@ class MatchingConfig(BaseModel):
     icp_iterations: int = Field(default=8, gt=0, description="iterations per stage at most")
     field_iterations: int = Field(default=10, ge=0, description="Gauss-Newton steps on the distance field after ICP (0: none)")
     field_cutoff: float = Field(default=0.2, gt=0.0, description="farther cells are left out, m")
+    wall_closing: int = Field(
+        default=0,
+        ge=0,
+        description="close gaps in rows of wall cells with a square of this many cells before matching (0: off). "
+        "A wall seen at a grazing angle is a dashed row (1 degree between rays: 0.3 m apart 5 m along a wall "
+        "1.5 m away), the dashes move with the robot, and fitting them pulled the pose back toward the "
+        "location's centre along a rack hall's aisle, 0.1 m per update (BENCHMARKS.md, 'Design choices: "
+        "closing dashed walls')",
+    )
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
     # Chosen on generated scenes (benchmarks/tune_scan_matching.py, seeds 101-103, 1,800 near and
@@ -167,6 +176,9 @@ class PreparedGrid:
             self.row0 = self.col0 = row1 = col1 = 0
         self.crop = np.ascontiguousarray(grid[self.row0 : row1, self.col0 : col1])
         walls = (self.crop == OCCUPIED).astype(np.uint8)
+        if self.config.wall_closing > 1:
+            square = np.ones((self.config.wall_closing, self.config.wall_closing), np.uint8)
+            walls = cv2.morphologyEx(walls, cv2.MORPH_CLOSE, square)
         rows, cols = np.nonzero(walls)
         rows, cols = rows + self.row0, cols + self.col0
         self.occupied_cells = np.stack([rows, cols], axis=1)

@@ -294,3 +294,20 @@ def test_a_path_cut_past_a_location_moves_the_robot_to_the_vertex_it_heads_for()
             assert pose_error_of(maintainer.pose_in_current, between(poses["C"], robot)) < 0.1
     assert outcomes[2] == ("route", ids["C"])
     assert outcomes[1][1] != ids["C"]  # by the next vertex alone: not where the robot stands
+
+
+def test_wall_closing_joins_a_dashed_wall_and_leaves_a_door_open():
+    """A wall seen at a grazing angle: one cell in every three is a return. Closed with a 5-cell
+    square it is one row of walls; a 0.8 m doorway (8 cells) in it stays open."""
+    size = CONFIG.size
+    grid = np.full((size, size), 1, dtype=np.uint8)  # free
+    row = size // 2 + 15
+    dashed = list(range(20, 80, 3)) + list(range(88, 150, 3))  # a doorway between columns 79 and 88
+    grid[row, dashed] = OCCUPIED
+    raw = PreparedGrid(grid, CONFIG, MatchingConfig())
+    closed = PreparedGrid(grid, CONFIG, MatchingConfig(wall_closing=5))
+    assert len(raw.occupied_cells) == len(dashed)
+    columns = set(closed.occupied_cells[:, 1].tolist())
+    assert set(closed.occupied_cells[:, 0].tolist()) == {row}  # the row, nothing beside it
+    assert set(range(20, 78)) <= columns and set(range(88, 148)) <= columns
+    assert not columns & set(range(80, 87))  # the doorway
