@@ -86,6 +86,14 @@ class MappingConfig(BaseModel):
         "drift (None: max_correction alone)",
     )
     correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
+    degenerate_ratio: float | None = Field(
+        None,
+        gt=1,
+        description="tracking: where the match fixes the position this many times worse along one direction than "
+        "across it (the square root of its covariance's eigenvalue ratio), the pose keeps its prediction along that "
+        "direction (None: off; 2 measured on generated halls, rings and trees, BENCHMARKS.md, 'Design choices: "
+        "tracking along a direction the match does not fix')",
+    )
     edge_tolerance: float = Field(1.0, gt=0, description="a new edge agrees with the graph's path within this (m) ...")
     edge_tolerance_per_metre: float = Field(0.05, ge=0, description="... plus this share of the path length")
     loop_ratio: float = Field(2.0, gt=1, description="a path longer than this times the edge closes a loop")
@@ -237,6 +245,7 @@ class MappingCounters:
     undone_closures: int = 0  # mapping: loop-closure edges removed when a later closure contradicted them
     shortcuts: int = 0  # mapping's end: edges between locations joined only the long way round, a way seen between them
     edges_measured: int = 0  # mapping's end: edges whose length the grids measured (Dijkstra's weights)
+    remapped: int = 0  # tracking: matches whose correction along a direction they fix poorly was left out (degenerate_ratio)
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -416,9 +425,11 @@ class GraphMaintainer:
             if nearer and float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
                 continue
             self.counters.matches += 1
-            located = self.localizer.verify(query, vertex, between(pose_uv, here), self.config.max_neighbour_jump)
+            guess = between(pose_uv, here)
+            located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
             if located is None:
                 continue
+            located = self._remapped(guess, located)
             self._switch(vertex, located.pose, self._located_covariance(located))
             self.last_verified = True
             return True
@@ -466,6 +477,24 @@ class GraphMaintainer:
         self.counters.matches += 1
         return self.localizer.verify(query, self.current, self.pose_in_current, self.config.max_correction) is not None
 
+    def _remapped(self, predicted: NDArray[np.float64], located: Localized) -> Localized:
+        """``located`` with its correction of ``predicted`` taken out along the direction the match
+        fixes poorly (``degenerate_ratio``): along an aisle or a corridor without ends in sight the
+        scan says little, and what it says (dashes of a wall, a rack's end seen at a grazing angle)
+        moves with the robot; there the prediction (odometry, an edge) is kept."""
+        ratio = self.config.degenerate_ratio
+        covariance = located.result.covariance
+        if ratio is None or covariance is None or located.result.overlap < self.matching.min_overlap:
+            return located
+        values, vectors = np.linalg.eigh(covariance[:2, :2])
+        if values[0] <= 0.0 or values[1] < ratio**2 * values[0]:
+            return located
+        weak = vectors[:, 1]
+        pose = located.pose.copy()
+        pose[:2] -= weak * float(weak @ (pose[:2] - predicted[:2]))
+        self.counters.remapped += 1
+        return Localized(located.vertex, pose, located.result)
+
     def _correct(self, query: PreparedGrid) -> bool:
         assert self.current is not None
         limit = self.config.max_correction
@@ -476,6 +505,7 @@ class GraphMaintainer:
         self.counters.matches += 1
         if located is None:
             return False
+        located = self._remapped(self.pose_in_current, located)
         self._odometer_verified = self._odom.metres
         self.pose_in_current = located.pose
         self.pose_covariance = self._located_covariance(located)
@@ -502,6 +532,7 @@ class GraphMaintainer:
             if located is not None and self._claims_seen_only and not self._sees(vertex, located.pose):
                 continue
             if located is not None:
+                located = self._remapped(guess, located)
                 if self.mapping:
                     self._refine_edge(query, self.current, vertex, located)
                 self._switch(vertex, located.pose, self._located_covariance(located))

@@ -176,7 +176,7 @@ class PreparedGrid:
             self.row0 = self.col0 = row1 = col1 = 0
         self.crop = np.ascontiguousarray(grid[self.row0 : row1, self.col0 : col1])
         walls = (self.crop == OCCUPIED).astype(np.uint8)
-        if self.config.wall_closing > 1:
+        if self.config.wall_closing > 1 and walls.size:  # an empty grid has an empty crop
             square = np.ones((self.config.wall_closing, self.config.wall_closing), np.uint8)
             walls = cv2.morphologyEx(walls, cv2.MORPH_CLOSE, square)
         rows, cols = np.nonzero(walls)

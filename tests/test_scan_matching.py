@@ -128,7 +128,9 @@ def test_a_prepared_grid_keeps_its_distance_field_and_nearest_walls_compact_and_
     import cv2
 
     prepared = PreparedGrid(grids[0], CONFIG)
-    walls = (prepared.crop == OCCUPIED).astype(np.uint8)
+    walls = np.zeros_like(prepared.crop, dtype=np.uint8)  # the walls it matches to (closed: wall_closing)
+    walls[prepared.occupied_cells[:, 0] - prepared.row0, prepared.occupied_cells[:, 1] - prepared.col0] = 1
+    assert walls.sum() >= (prepared.crop == OCCUPIED).sum()
     metres = cv2.distanceTransform(1 - walls, cv2.DIST_L2, cv2.DIST_MASK_5) * np.float32(CONFIG.resolution)
     assert prepared.field.dtype == np.uint16 and prepared.nearest.dtype == np.uint16
     near = metres < 3.0
@@ -304,10 +306,51 @@ def test_wall_closing_joins_a_dashed_wall_and_leaves_a_door_open():
     row = size // 2 + 15
     dashed = list(range(20, 80, 3)) + list(range(88, 150, 3))  # a doorway between columns 79 and 88
     grid[row, dashed] = OCCUPIED
-    raw = PreparedGrid(grid, CONFIG, MatchingConfig())
+    raw = PreparedGrid(grid, CONFIG, MatchingConfig(wall_closing=0))
     closed = PreparedGrid(grid, CONFIG, MatchingConfig(wall_closing=5))
     assert len(raw.occupied_cells) == len(dashed)
     columns = set(closed.occupied_cells[:, 1].tolist())
     assert set(closed.occupied_cells[:, 0].tolist()) == {row}  # the row, nothing beside it
     assert set(range(20, 78)) <= columns and set(range(88, 148)) <= columns
     assert not columns & set(range(80, 87))  # the doorway
+
+
+def test_tracking_keeps_odometry_along_a_corridor_the_match_cannot_fix():
+    """In a bare corridor (no ends, no doors in sight) the match fixes the cross offset, not the
+    position along it: with ``degenerate_ratio`` the maintainer takes the match's correction across
+    the corridor and keeps its prediction along it, and in the building, whose niches and rooms fix
+    both directions, it takes the match as it is."""
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+
+    bare = RasterWorld(-2.0, -5.0, 60.0, 10.0).add_box(-2.0, 58.0, -5.0, 5.0)
+    bare.heights[int(round(3.8 / bare.res)) : int(round(6.2 / bare.res)), :] = 0.0  # y in [-1.2, 1.2)
+    describe = lambda points: np.ones(4, dtype=np.float32)  # noqa: E731 - no recognition needed here
+    # the prediction 0.12 m off along the way and 0.06 m across it
+    predicted_error = np.array([0.12, 0.06, 0.0])
+    for world, anchor, robot, remapped in (
+        (bare, np.array([20.0, 0.2, 0.0]), np.array([21.5, -0.1, 0.05]), True),
+        (WORLD, POSE_A, np.array([10.5, 0.0, 0.15]), False),
+    ):
+        graph = TopologicalGraph(4)
+        vertex = graph.add_vertex(CroppedGrid.from_grid(grid_at(anchor, world)), np.ones(4, np.float32), anchor, stamp=0.0)
+        config = MappingConfig(degenerate_ratio=2.0, correction_per_metre=None)
+        # closed walls, as the two options are used (configs/navtopo_aisles.yaml): unclosed, the walls'
+        # dashes claim to fix the slide (the covariance's axes within a factor of 2 here)
+        matching = MatchingConfig(wall_closing=5)
+        maintainer = GraphMaintainer(graph, describe, CONFIG, matching, config, LocalizationConfig(), mapping=False)
+        truth = between(anchor, robot)
+        maintainer.start_at(vertex, compose(truth, predicted_error), robot)
+        happened = maintainer.update(lidar_scan(world, robot, ceiling=WALL_HEIGHT), robot, stamp=1.0, force=True)
+        assert happened == "inside"
+        # the error in the robot's frame (x: along its heading, the corridor's direction)
+        error = between(truth, maintainer.pose_in_current)
+        assert abs(error[1]) < 0.03  # across: corrected
+        if remapped:
+            assert maintainer.counters.remapped == 1
+            assert abs(error[0] - predicted_error[0]) < 0.02  # along: the prediction's, kept
+        else:
+            assert maintainer.counters.remapped == 0
+            assert abs(error[0]) < 0.05  # the building fixes it
