@@ -97,7 +97,7 @@ class MatchingConfig(BaseModel):
         "A wall seen at a grazing angle is a dashed row (1 degree between rays: 0.3 m apart 5 m along a wall "
         "1.5 m away), the dashes move with the robot, and fitting them pulled the pose back toward the "
         "location's centre along a rack hall's aisle, 0.1 m per update (BENCHMARKS.md, 'Design choices: "
-        "closing dashed walls')",
+        "closing dashed walls'). The fits use the closed walls; the verdict counts the walls seen",
     )
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
@@ -175,7 +175,8 @@ class PreparedGrid:
         else:
             self.row0 = self.col0 = row1 = col1 = 0
         self.crop = np.ascontiguousarray(grid[self.row0 : row1, self.col0 : col1])
-        walls = (self.crop == OCCUPIED).astype(np.uint8)
+        seen = (self.crop == OCCUPIED).astype(np.uint8)
+        walls = seen
         if self.config.wall_closing > 1 and walls.size:  # an empty grid has an empty crop
             square = np.ones((self.config.wall_closing, self.config.wall_closing), np.uint8)
             walls = cv2.morphologyEx(walls, cv2.MORPH_CLOSE, square)
@@ -183,6 +184,13 @@ class PreparedGrid:
         rows, cols = rows + self.row0, cols + self.col0
         self.occupied_cells = np.stack([rows, cols], axis=1)
         self.occupied_xy = grid_frame(self.grid_config).to_world(self.occupied_cells)
+        # the wall cells the lidar saw, which the verdict counts: a closed gap's cells were never
+        # seen, and where the other grid holds them as free they would contradict a right match
+        if walls is seen:
+            self.seen_xy = self.occupied_xy
+        else:
+            seen_rows, seen_cols = np.nonzero(seen)
+            self.seen_xy = grid_frame(self.grid_config).to_world(np.stack([seen_rows + self.row0, seen_cols + self.col0], axis=1))
         self.known_count = int(np.count_nonzero(self.crop))
         # compact: the distance field in 16-bit steps of ``field_unit`` (a 2048th of a cell,
         # saturating at 32 cells, past any cutoff: interpolated between cells at most 1.5 cells
@@ -226,6 +234,8 @@ class PreparedGrid:
         features); the full canvas is not kept."""
         arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.nearest, self.field]
         total = sum(int(a.nbytes) for a in arrays)
+        if self.seen_xy is not self.occupied_xy:
+            total += int(self.seen_xy.nbytes)
         if "features" in self.__dict__:
             xy, descriptors = self.features
             total += int(xy.nbytes) + (int(descriptors.nbytes) if descriptors is not None else 0)
@@ -589,7 +599,8 @@ def verdict(
 ) -> tuple[float, float, float, int]:
     """(score, wall agreement, overlap, matched walls) of the query placed at ``pose``.
 
-    Wall agreement counts, both ways, occupied cells of one grid within ``wall_tolerance`` of an
+    Wall agreement counts, both ways, occupied cells of one grid (as seen: not the cells
+    ``wall_closing`` adds, which the fit uses) within ``wall_tolerance`` of an
     occupied cell of the other (agree) or in its free space (contradict); cells landing in the
     other's unknown space count for neither. Overlap is the shared known area over the smaller
     known area (``local_grid.overlap``'s measure, by sampling cell centres; not the IoU, which
@@ -599,7 +610,7 @@ def verdict(
     agree = conflict = 0
     for source, target, frame in ((query, reference, pose), (reference, query, inverse(pose))):
         a, c = _wall_counts(
-            source.occupied_xy,
+            source.seen_xy,
             frame,
             target.crop,
             target.field,

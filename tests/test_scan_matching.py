@@ -315,6 +315,27 @@ def test_wall_closing_joins_a_dashed_wall_and_leaves_a_door_open():
     assert not columns & set(range(80, 87))  # the doorway
 
 
+def test_the_verdict_counts_the_walls_seen_not_the_closed_ones():
+    """Two chair legs 0.4 m apart, both seen from one place, one of them hidden from the other
+    (which saw free floor there). Closing joins the legs into a bar for the fit; the verdict, counting
+    the walls the lidar saw, holds the right match to what it is without closing (one leg agrees
+    each way, the hidden one contradicts), not one contradiction per filled cell."""
+    from navtopo.scan_matching import verdict
+
+    size = CONFIG.size
+    row = size // 2 + 10
+    both = np.full((size, size), 1, dtype=np.uint8)
+    both[row, [size // 2, size // 2 + 4]] = OCCUPIED
+    one = np.full((size, size), 1, dtype=np.uint8)
+    one[row, size // 2] = OCCUPIED
+    closing, raw = MatchingConfig(wall_closing=5), MatchingConfig(wall_closing=0)
+    closed = PreparedGrid(both, CONFIG, closing)
+    assert len(closed.occupied_cells) == 5 and len(closed.seen_xy) == 2  # the bar fitted, the legs counted
+    _, agreement, _, _ = verdict(PreparedGrid(one, CONFIG, closing), closed, np.zeros(3), closing)
+    _, agreement_raw, _, _ = verdict(PreparedGrid(one, CONFIG, raw), PreparedGrid(both, CONFIG, raw), np.zeros(3), raw)
+    assert agreement == pytest.approx(agreement_raw) == pytest.approx(2 / 3)
+
+
 def test_tracking_keeps_odometry_along_a_corridor_the_match_cannot_fix():
     """In a bare corridor (no ends, no doors in sight) the match fixes the cross offset, not the
     position along it: with ``degenerate_ratio`` the maintainer takes the match's correction across
