@@ -20,10 +20,12 @@ float32 points, odometry) is stored with the true pose, in an ``.npz`` under a c
 from __future__ import annotations
 
 import argparse
+import hashlib
 import io
 import json
 import subprocess
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,11 +80,35 @@ def generated_spec(kind: str, length: float, seed: int, setting: str, route_fact
         spec = hall.hall_building(length, seed, route_factor=route_factor, trials=1)
     else:
         raise SystemExit(f"unknown scene kind {kind!r}: tree, ring or hall")
+    return in_setting(spec, setting)
+
+
+def in_setting(spec: dict[str, Any], setting: str) -> dict[str, Any]:
+    """The scenario dict with the odometry and lidar noise of ``setting``."""
+    if setting not in SETTINGS:
+        raise SystemExit(f"unknown setting {setting!r}: one of {sorted(SETTINGS)}")
+    spec = dict(spec)
     spec["name"] = f"{spec['name']}_{setting}"
     spec["description"] = f"{spec.get('description', '')}; tuning setting {setting}"
     spec["odometry"] = dict(SETTINGS[setting]["odometry"])
     spec["sensor"] = {**spec.get("sensor", {}), **SETTINGS[setting]["sensor"]}
     return spec
+
+
+def file_scenario(path: Path, setting: str) -> tuple[Scenario, str]:
+    """A scene written by ``generate_scene.py`` (any kind: aliased, SLAM-like, ...) in one setting,
+    and its cache key; a bundled scenario or one with a benchmark seed is refused (the tuning rule)."""
+    path = Path(path)
+    bundled = Path(__file__).resolve().parents[1] / "scenarios" / "bundled"
+    if bundled in path.resolve().parents:
+        raise SystemExit(f"{path}: a bundled benchmark scene; tune on generated scenes (benchmarks/generate_scene.py)")
+    text = path.read_text()
+    spec = yaml.safe_load(text)
+    if not isinstance(spec, dict) or spec.get("seed") in BENCHMARK_SEEDS:
+        raise SystemExit(f"{path}: seed: {spec.get('seed') if isinstance(spec, dict) else None} is not a tuning seed")
+    spec = in_setting(spec, setting)
+    digest = hashlib.sha1(text.encode()).hexdigest()[:8]
+    return build_scenario(parse_spec(spec, path), path, with_trials=False), f"{path.stem}_{digest}_{setting}"
 
 
 def generated_scenario(kind: str, length: float, seed: int, setting: str, route_factor: float = 6.0) -> Scenario:
@@ -185,18 +211,36 @@ def recording(
     """The scene and its recorded mapping drive, from the cache or recorded now (and cached)."""
     scenario = generated_scenario(kind, length, seed, setting, route_factor)
     key = scene_key(kind, length, seed, setting, route_factor)
+    return scenario, cached_drive(cache, scenario, key), key
+
+
+def cached_drive(cache: Path, scenario: Scenario, key: str) -> Recording:
+    """The scenario's recorded mapping drive, from the cache or recorded now (and cached)."""
     path = Path(cache) / "drives" / f"{key}.npz"
     if path.is_file():
         rec = Recording.load(path)
         revision = git_state()["git_revision"]
         if rec.meta.get("git_revision") != revision:
             print(f"note: {path.name} was recorded at {rec.meta.get('git_revision')}, the code is at {revision}", flush=True)
-        return scenario, rec, key
+        return rec
     print(f"recording {key} ({scenario.route_length_m:.0f} m route) ...", flush=True)
     rec = record_drive(scenario, seed=int(scenario.spec.seed))
     rec.save(path)
     print(f"  {rec.meta['scans']} scans in {rec.meta['record_s']} s, {rec.meta['collisions']} collisions", flush=True)
-    return scenario, rec, key
+    return rec
+
+
+def scenes(args: argparse.Namespace) -> Iterator[tuple[str, Scenario, Recording, str]]:
+    """(setting, scenario, recorded drive, key) of each scene ``replay_parser``'s arguments name:
+    the ``--scene`` files if any, else ``--kind`` at each of ``--seeds``; each in every setting."""
+    for setting in parse_list(args.settings):
+        if args.scene:
+            for file in args.scene:
+                scenario, key = file_scenario(file, setting)
+                yield setting, scenario, cached_drive(args.cache, scenario, key), key
+        else:
+            for seed in parse_list(args.seeds, int):
+                yield setting, *recording(args.cache, args.kind, args.length, seed, setting, args.route_factor)
 
 
 def git_state() -> dict[str, Any]:
@@ -213,17 +257,30 @@ def parse_list(text: str, kind: type = str) -> list:
     return [kind(item) for item in text.split(",") if item.strip()]
 
 
-def replay_parser(description: str, kind: str, length: float, seeds: str, settings: str) -> argparse.ArgumentParser:
-    """The arguments every replay over recorded drives takes: the generated scenes, the drives'
-    cache, candidate configs (``NAME=YAML`` overrides, read by ``candidates``) and a JSON copy."""
-    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+def scene_arguments(parser: argparse.ArgumentParser, kind: str, length: float, seeds: str, settings: str) -> None:
+    """The arguments naming the scenes a tuning script drives (read by ``scenes``): a generated
+    kind at seeds, or scene files; the settings; the drives' cache."""
     parser.add_argument("--kind", default=kind, help="tree (corridor_tree), ring (ring_building) or hall (hall_building)")
-    parser.add_argument("--length", type=float, default=length)
+    parser.add_argument("--length", type=float, default=length, help="m of corridor (hall: its long side)")
     parser.add_argument("--seeds", default=seeds, help="comma list; never the benchmark's")
     parser.add_argument("--settings", default=settings)
-    parser.add_argument("--route-factor", type=float, default=6.0)
+    parser.add_argument("--route-factor", type=float, default=6.0, help="mapping route length / corridor length")
+    parser.add_argument(
+        "--scene",
+        type=Path,
+        action="append",
+        default=[],
+        help="a scene file from benchmarks/generate_scene.py (any kind, its own route), instead of --kind/--seeds; repeatable",
+    )
+    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="recorded drives (and what scripts cache beside them)")
+
+
+def replay_parser(description: str, kind: str, length: float, seeds: str, settings: str) -> argparse.ArgumentParser:
+    """The arguments every replay over recorded drives takes: the scenes (``scene_arguments``),
+    candidate configs (``NAME=YAML`` overrides, read by ``candidates``) and a JSON copy."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    scene_arguments(parser, kind, length, seeds, settings)
     parser.add_argument("--candidate", action="append", default=[], help="NAME=YAML overrides; 'default' always runs first")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     parser.add_argument("--json", type=Path, help="also write the rows here")
     return parser
 

@@ -20,7 +20,7 @@ import time
 from typing import Any
 
 import numpy as np
-from _tuning import Recording, git_state, parse_list, recording, replay_parser
+from _tuning import Recording, git_state, replay_parser, scenes
 from _tuning import candidates as candidates_of
 
 from navkit import geometry as se2
@@ -77,18 +77,16 @@ def main() -> None:
         "| heading median / max abs (°) | ms a scan |"
     )
     print("|---|---|---|---|---|---|")
-    for seed in parse_list(args.seeds, int):
-        for setting in parse_list(args.settings):
-            _, rec, key = recording(args.cache, args.kind, args.length, seed, setting, args.route_factor)
-            for name, overrides in candidates.items():
-                row = {"scene": key, "setting": setting, "candidate": name, **replay(rec, overrides)}
-                rows.append(row)
-                print(
-                    f"| {key} | {name} | {' / '.join(map(str, row['error_m']))} | "
-                    f"{' / '.join(map(str, row['first_visit_error_m']))} | "
-                    f"{row['heading_deg_median']:+.2f} / {row['heading_deg_max_abs']:.2f} | {row['ms_per_scan']} |",
-                    flush=True,
-                )
+    for setting, _, rec, key in scenes(args):
+        for name, overrides in candidates.items():
+            row = {"scene": key, "setting": setting, "candidate": name, **replay(rec, overrides)}
+            rows.append(row)
+            print(
+                f"| {key} | {name} | {' / '.join(map(str, row['error_m']))} | "
+                f"{' / '.join(map(str, row['first_visit_error_m']))} | "
+                f"{row['heading_deg_median']:+.2f} / {row['heading_deg_max_abs']:.2f} | {row['ms_per_scan']} |",
+                flush=True,
+            )
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"code": git_state(), "rows": rows}, indent=1))

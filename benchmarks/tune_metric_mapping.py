@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 import yaml
-from _tuning import DEFAULT_CACHE, Recording, git_state, parse_list, recording
+from _tuning import Recording, git_state, parse_list, scene_arguments, scenes
 from bench_metric_map_quality import wall_quality
 
 from baselines.metric_grid.system import NOISY_ODOMETRY, PRECISE_ODOMETRY, MetricGrid, MetricGridConfig
@@ -272,11 +272,7 @@ def print_tables(results: list[dict], rows: list[dict]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--kind", default="tree", help="generated scene: tree (corridor_tree) or ring (ring_building)")
-    parser.add_argument("--seeds", default="101,102,103", help="scene seeds (never the benchmark's 1, 7, 11, 150)")
-    parser.add_argument("--length", type=float, default=150.0, help="m of corridor per scene")
-    parser.add_argument("--route-factor", type=float, default=6.0, help="mapping route length / corridor length")
-    parser.add_argument("--settings", default="precise,noisy")
+    scene_arguments(parser, kind="tree", length=150.0, seeds="101,102,103", settings="precise,noisy")
     parser.add_argument(
         "--configs",
         default="default",
@@ -289,7 +285,6 @@ def main() -> None:
         metavar="NAME=YAML",
         help="an ad hoc candidate: overrides of MetricGridConfig as YAML",
     )
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE, help="recorded drives, kiss-icp poses and maps")
     parser.add_argument("--save-maps", action="store_true", help="save each map under CACHE/maps (for tune_scan_to_map.py)")
     parser.add_argument("--json", type=Path, help="write every result and the summary here")
     parser.add_argument("--fresh", action="store_true", help="replay again even if CACHE/results holds this result")
@@ -308,19 +303,17 @@ def main() -> None:
         make_config(overrides)  # fail early on a bad candidate
 
     results = []
-    for setting in parse_list(args.settings):
-        for seed in parse_list(args.seeds, int):
-            scenario, rec, key = recording(args.cache, args.kind, args.length, seed, setting, args.route_factor)
-            for name, overrides in candidates.items():
-                r = cached_replay(scenario, rec, key, name, overrides, args)
-                results.append(r)
-                print(
-                    f"{key} {name}: recall {r['wall_recall']:.3f} precision {r['occupied_precision']:.3f} "
-                    f"ATE {r['ate_rmse_m']:.3f} m (aligned {r['aligned_rmse_m']:.3f} m, {r['alignment_yaw_deg']:+.3f}°) "
-                    f"loops {r['loop_closures']} bad {r['bad_loops']} [{r['replay_s']:.0f} s]",
-                    flush=True,
-                )
-                write_json(args, results)
+    for _, scenario, rec, key in scenes(args):
+        for name, overrides in candidates.items():
+            r = cached_replay(scenario, rec, key, name, overrides, args)
+            results.append(r)
+            print(
+                f"{key} {name}: recall {r['wall_recall']:.3f} precision {r['occupied_precision']:.3f} "
+                f"ATE {r['ate_rmse_m']:.3f} m (aligned {r['aligned_rmse_m']:.3f} m, {r['alignment_yaw_deg']:+.3f}°) "
+                f"loops {r['loop_closures']} bad {r['bad_loops']} [{r['replay_s']:.0f} s]",
+                flush=True,
+            )
+            write_json(args, results)
     print_tables(results, summarise(results))
     write_json(args, results)
 

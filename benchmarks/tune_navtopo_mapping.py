@@ -10,6 +10,11 @@ overrides.
 
     .venv/bin/python benchmarks/tune_navtopo_mapping.py --kind ring --length 140 --seeds 101 \\
         --settings precise,noisy --candidate 'no-refine={mapping: {edge_measurements: 1}}'
+
+Any generated scene written by ``generate_scene.py`` (aliased, SLAM-like, ...), its own route:
+
+    .venv/bin/python benchmarks/generate_scene.py aliased-wing --seed 131 -o /tmp/wing131.yaml
+    .venv/bin/python benchmarks/tune_navtopo_mapping.py --scene /tmp/wing131.yaml --settings precise
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import time
 from typing import Any
 
 import numpy as np
-from _tuning import Recording, git_state, parse_list, recording, replay_parser
+from _tuning import Recording, git_state, replay_parser, scenes
 from _tuning import candidates as candidates_of
 
 from navkit import geometry as se2
@@ -82,13 +87,11 @@ def main() -> None:
     args = replay_parser(__doc__, kind="ring", length=140.0, seeds="101", settings="precise,noisy").parse_args()
     candidates = candidates_of(args.candidate)
     rows = []
-    for seed in parse_list(args.seeds, int):
-        for setting in parse_list(args.settings):
-            scenario, rec, key = recording(args.cache, args.kind, args.length, seed, setting, args.route_factor)
-            for name, overrides in candidates.items():
-                row = {"scene": key, "setting": setting, "candidate": name, **replay(scenario, rec, overrides)}
-                rows.append(row)
-                print(json.dumps(row), flush=True)
+    for setting, scenario, rec, key in scenes(args):
+        for name, overrides in candidates.items():
+            row = {"scene": key, "setting": setting, "candidate": name, **replay(scenario, rec, overrides)}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"code": git_state(), "rows": rows}, indent=1))

@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from _tuning import DEFAULT_CACHE, git_state, parse_list, recording
+from _tuning import git_state, parse_list, scene_arguments, scenes
 from tune_metric_mapping import CANDIDATES, replay
 
 from baselines.metric_grid.config import ScanConfig
@@ -163,11 +163,7 @@ def pooled(results: list[dict], setting: str, map_config: str, depth: str, start
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--kind", default="tree")
-    parser.add_argument("--seeds", default="101,102,103", help="scene seeds (never the benchmark's 1, 7, 11, 150)")
-    parser.add_argument("--length", type=float, default=150.0)
-    parser.add_argument("--route-factor", type=float, default=6.0)
-    parser.add_argument("--settings", default="precise,noisy")
+    scene_arguments(parser, kind="tree", length=150.0, seeds="101,102,103", settings="precise,noisy")
     parser.add_argument(
         "--map-config",
         default="precise=wheel-noloops+wheel+lidar,noisy=lidar+lidar-s0.1",
@@ -178,7 +174,6 @@ def main() -> None:
     parser.add_argument("--poses", type=int, default=300, help="random poses per scene")
     parser.add_argument("--perturb-xy", type=float, default=0.05, help="m, std per axis of the predicted pose's error")
     parser.add_argument("--perturb-yaw-deg", type=float, default=1.0, help="deg, std of the predicted heading's error")
-    parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     args.depths = parse_list(args.depths, float)
@@ -186,30 +181,28 @@ def main() -> None:
     settings = parse_list(args.settings)
 
     results = []
-    for setting in settings:
-        for seed in parse_list(args.seeds, int):
-            scenario, rec, key = recording(args.cache, args.kind, args.length, seed, setting, args.route_factor)
-            maps = {}
-            for name in map_config[setting].split("+"):
-                map_yaml = args.cache / "maps" / key / name / "map.yaml"
-                if not map_yaml.is_file():
-                    print(f"building the {name} map of {key} ...", flush=True)
-                    replay(scenario, rec, key, name, CANDIDATES[name], args.cache, save_maps=True)
-                maps[name] = GridMap.load(map_yaml)
-            started = time.perf_counter()
-            for result in run_scene(scenario, key, maps, args):
-                results.append(result)
-                depth = result["point_depth_m"]
-                print(f"{key} ({result['map_config']} map): point depth median {depth['median']:.4f} m", flush=True)
-                for wall_depth, by_start in result["by_depth"].items():
-                    p = by_start["perturbed"]
-                    print(
-                        f"  wall_depth {wall_depth}: accepted {p['accepted']:.3f}, "
-                        f"translation median {p['translation_cm']['median']:.2f} cm, "
-                        f"bias x {p['bias']['x_cm']:+.2f} y {p['bias']['y_cm']:+.2f} cm",
-                        flush=True,
-                    )
-            print(f"  [{time.perf_counter() - started:.0f} s]", flush=True)
+    for setting, scenario, rec, key in scenes(args):
+        maps = {}
+        for name in map_config[setting].split("+"):
+            map_yaml = args.cache / "maps" / key / name / "map.yaml"
+            if not map_yaml.is_file():
+                print(f"building the {name} map of {key} ...", flush=True)
+                replay(scenario, rec, key, name, CANDIDATES[name], args.cache, save_maps=True)
+            maps[name] = GridMap.load(map_yaml)
+        started = time.perf_counter()
+        for result in run_scene(scenario, key, maps, args):
+            results.append(result)
+            depth = result["point_depth_m"]
+            print(f"{key} ({result['map_config']} map): point depth median {depth['median']:.4f} m", flush=True)
+            for wall_depth, by_start in result["by_depth"].items():
+                p = by_start["perturbed"]
+                print(
+                    f"  wall_depth {wall_depth}: accepted {p['accepted']:.3f}, "
+                    f"translation median {p['translation_cm']['median']:.2f} cm, "
+                    f"bias x {p['bias']['x_cm']:+.2f} y {p['bias']['y_cm']:+.2f} cm",
+                    flush=True,
+                )
+        print(f"  [{time.perf_counter() - started:.0f} s]", flush=True)
 
     print(
         "\n| setting | map | wall_depth (m) | start | accepted | translation median / p90 / rms (cm) | yaw median / p90 (°) "
