@@ -41,6 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,7 +58,7 @@ from navkit.odometer import Odometer
 from navkit.raster import UNKNOWN
 from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
-from navtopo.graph_poses import hint_chain
+from navtopo.graph_poses import hint_chain, relaxed_poses
 from navtopo.local_grid import CroppedGrid, overlap
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
 from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
@@ -176,6 +177,23 @@ class MappingConfig(BaseModel):
         "generated noisy ring 921 the lidar's were 0.1-0.2 m off between locations met again after a loop and every "
         "right shortcut within 0.23 m of them; one shortcut of a held-out ring, 0.44 m (noisy) and 0.52 m (precise) "
         "off the truth, was 0.45 and 0.52 m off them",
+    )
+    shortcut_turn_agreement: float | None = Field(
+        1.0,
+        gt=0,
+        description="... where the graph has lidar-odometry hints, a match turned more than this (degrees) from the "
+        "pose that seeded it keeps the seed's pose: the pair is verified, but two grids that share a fifth of their "
+        "known area fix the turn between them to a few degrees (1-3 on a generated precise slam-ring), the relaxed "
+        "poses to a few tenths (at most 0.3 on generated noisy drives; BENCHMARKS.md, 'Design choices: shortcuts "
+        "seeded by the relaxed poses'). None: the match's",
+    )
+    shortcut_guess: Literal["hints", "relaxed"] = Field(
+        "relaxed",
+        description="... seeded by the locations' hints (graph_poses.hint_chain) or by their relaxed map poses "
+        "(graph_poses.relaxed_poses: the hints and every edge made while driving, loop closures among them); a match "
+        "sharing too little known area to fix the pose (under matching.min_overlap) keeps the seed as the edge: on a "
+        "generated noisy mirror building the lidar hints put three such edges 0.31-0.59 m off, the relaxed poses "
+        "0.13-0.19 m",
     )
     shortcut_detour: float = Field(
         1.25, ge=1.0, description="... the way between them at most this times the straight line (plus two cells)"
@@ -669,6 +687,8 @@ class GraphMaintainer:
         # generated ring: the wheels' 3-8 m and 15-20° off between locations met again after a loop,
         # too far for the seeded match, the lidar's 0.1-0.2 m), the wheels' when exact
         _, hints = hint_chain(self.graph)
+        if config.shortcut_guess == "relaxed":
+            hints = relaxed_poses(self.graph)
         # with lidar hints beside the wheels' the chain took the better of the two, a few decimetres
         # off at most; without them (wheels alone, however they drift) nothing gates the match
         gated = all(vertex.lidar_hint is not None for vertex in vertices)
@@ -705,6 +725,9 @@ class GraphMaintainer:
                 off = between(guess, located.pose)
                 if gated and float(np.hypot(off[0], off[1])) > config.shortcut_hint_agreement:
                     continue  # the hints are a few decimetres off at most: a match farther slid
+                turn = config.shortcut_turn_agreement
+                if gated and turn is not None and abs(float(wrap_angle(off[2]))) > np.radians(turn):
+                    located = Localized(located.vertex, guess.copy(), located.result)
                 length = way(self.graph, u, v, located.pose)
                 straight = float(np.hypot(located.pose[0], located.pose[1]))
                 if length is None or length > config.shortcut_detour * straight + 2 * self.grid_config.resolution:

@@ -335,6 +335,45 @@ def test_mapping_ends_by_joining_locations_the_graph_joins_only_the_long_way_rou
         assert truth - 0.15 <= measured <= 1.1 * truth + 0.3, (u, v, measured, truth)
 
 
+@pytest.mark.parametrize("turn_agreement", [None, 1.0])
+def test_a_shortcut_match_turned_from_its_seed_keeps_the_seed(tmp_path, monkeypatch, turn_agreement):
+    """Two grids that share a fifth of their known area fix the turn between them to a few degrees,
+    the locations' relaxed poses to a few tenths (BENCHMARKS.md, "Design choices: shortcuts seeded by
+    the relaxed poses"). The small ring's shortcut, its match turned by 3 degrees as such a pair of
+    grids can turn it: with ``shortcut_turn_agreement`` the edge keeps the seed, within 0.1 m and 0.5
+    degrees of the truth; without it, the edge is the turned match."""
+    from navtopo.localization import Localized
+
+    scenario = load_scenario(small_ring(tmp_path))
+    mapping = {"closure_radius": None, "shortcut_guess": "relaxed", "shortcut_turn_agreement": turn_agreement}
+    system = NavTopo.create(NavTopoConfig(descriptor="scan_context", mapping=mapping))
+    true_at: dict = {}
+    with Simulator(scenario) as sim:
+        sim.reset([3.0, 0.0, np.pi])
+        drive(system, sim, [[3, 0], [0, 0], [0, 8], [16, 8], [16, 0], [5.3, 0], [12, 0]], true_at)
+    localizer = system.maintainer.localizer
+    verify = localizer.verify
+
+    def turned(query, vertex, guess=None, *args, **kwargs):
+        located = verify(query, vertex, guess, *args, **kwargs)
+        if located is None:
+            return None
+        return Localized(located.vertex, located.pose + np.array([0.0, 0.0, np.radians(3.0)]), located.result)
+
+    monkeypatch.setattr(localizer, "verify", turned)
+    system.finish_mapping()
+    first, last = 0, len(system.graph) - 1
+    assert system.graph.has_edge(first, last)
+    vertices = system.graph.vertices
+    truth = se2.between(true_at[vertices[first].stamp], true_at[vertices[last].stamp])
+    error = se2.between(truth, system.graph.edge(first, last))
+    turn = abs(np.degrees(se2.wrap_angle(error[2])))
+    if turn_agreement is None:
+        assert 2.0 < turn < 4.0
+    else:
+        assert turn < 0.5 and np.hypot(error[0], error[1]) < 0.1
+
+
 def test_a_place_far_from_the_robot_by_the_current_locations_hint_is_no_loop_closure_candidate():
     """Hints drift apart by what odometry travelled between their making: after a long route the
     gate around the robot's odometry is wide (3 m + 5 % of 1.3 km), but the robot's pose in the
