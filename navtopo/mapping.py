@@ -668,11 +668,13 @@ class GraphMaintainer:
         driven into and out of without reaching the junction's location). A route between them went
         round the block: 2-3 times the shortest way on generated lattices (issue 30).
 
-        Pairs whose hints (``graph_poses.hint_chain``: the lidar odometry's where the wheels drift)
-        lie within ``shortcut_radius`` (plus what drift explains) and
-        whose graph path is ``shortcut_ratio`` times longer are matched grid against grid, seeded by the
-        hints (the verdict with a guess: two locations a few metres apart share a fifth of their
-        known area, too little for the strict one). The edge is made when the match fixes the pose
+        Pairs whose seeds (``shortcut_guess``: the relaxed map poses, or the hints of
+        ``graph_poses.hint_chain``, the lidar odometry's where the wheels drift) lie within
+        ``shortcut_radius`` (plus what drift explains) and
+        whose graph path is ``shortcut_ratio`` times longer are matched grid against grid, seeded by
+        them (the verdict with a guess: two locations a few metres apart share a fifth of their
+        known area, too little for the strict one, and fix the turn between them worse than the seeds
+        do: ``shortcut_turn_agreement``). The edge is made when the match fixes the pose
         (``shortcut_max_sigma``), the two grids united show a way between the two observation points
         (``way``: the navigator's local planner through their known free space), at most
         ``shortcut_detour`` times the straight line (the edge's length, Dijkstra's weight, is then the
