@@ -685,12 +685,11 @@ class GraphMaintainer:
             return 0
         per_metre = self.localizer.config.drift_per_metre
         vertices = self.graph.vertices
-        # the hints that agree with the edges: the lidar odometry's under drifting wheels (a noisy
+        # the seeds: the relaxed map poses (the hints below and the edges made driving), or the
+        # hints that agree with the edges alone: the lidar odometry's under drifting wheels (a noisy
         # generated ring: the wheels' 3-8 m and 15-20° off between locations met again after a loop,
         # too far for the seeded match, the lidar's 0.1-0.2 m), the wheels' when exact
-        _, hints = hint_chain(self.graph)
-        if config.shortcut_guess == "relaxed":
-            hints = relaxed_poses(self.graph)
+        hints = relaxed_poses(self.graph) if config.shortcut_guess == "relaxed" else hint_chain(self.graph)[1]
         # with lidar hints beside the wheels' the chain took the better of the two, a few decimetres
         # off at most; without them (wheels alone, however they drift) nothing gates the match
         gated = all(vertex.lidar_hint is not None for vertex in vertices)

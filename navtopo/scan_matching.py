@@ -180,17 +180,18 @@ class PreparedGrid:
         if self.config.wall_closing > 1 and walls.size:  # an empty grid has an empty crop
             square = np.ones((self.config.wall_closing, self.config.wall_closing), np.uint8)
             walls = cv2.morphologyEx(walls, cv2.MORPH_CLOSE, square)
-        rows, cols = np.nonzero(walls)
-        rows, cols = rows + self.row0, cols + self.col0
-        self.occupied_cells = np.stack([rows, cols], axis=1)
-        self.occupied_xy = grid_frame(self.grid_config).to_world(self.occupied_cells)
+        frame = grid_frame(self.grid_config)
+
+        def cells(mask: NDArray[np.uint8]) -> NDArray[np.intp]:
+            rows, cols = np.nonzero(mask)
+            return np.stack([rows + self.row0, cols + self.col0], axis=1)
+
+        self.occupied_cells = cells(walls)
+        rows, cols = self.occupied_cells.T  # for the nearest-wall lookup below
+        self.occupied_xy = frame.to_world(self.occupied_cells)
         # the wall cells the lidar saw, which the verdict counts: a closed gap's cells were never
         # seen, and where the other grid holds them as free they would contradict a right match
-        if walls is seen:
-            self.seen_xy = self.occupied_xy
-        else:
-            seen_rows, seen_cols = np.nonzero(seen)
-            self.seen_xy = grid_frame(self.grid_config).to_world(np.stack([seen_rows + self.row0, seen_cols + self.col0], axis=1))
+        self.seen_xy = self.occupied_xy if walls is seen else frame.to_world(cells(seen))
         self.known_count = int(np.count_nonzero(self.crop))
         # compact: the distance field in 16-bit steps of ``field_unit`` (a 2048th of a cell,
         # saturating at 32 cells, past any cutoff: interpolated between cells at most 1.5 cells
