@@ -188,13 +188,17 @@ class RelocalizationConfig(BaseModel):
     turn_rate: float = Field(0.6, gt=0, description="rad/s: turn in place to see more while no pose is found")
     timeout: float = Field(30.0, gt=0, description="s of simulated time without a pose: fail with not_localized")
     lost_after: int = Field(15, ge=1, description="consecutive rejected tracking fits before the window search runs again")
-    # a kidnapped start (no initial pose given): the whole map searched, the find confirmed over motion
+    # a kidnapped start (no initial pose given): places followed as hypotheses, weighed look by look
+    # (tracking.py's module docstring)
     look_turn_deg: float = Field(
-        30.0, gt=0, description="kidnapped: a global search at the first scan and after each this many deg of turning ..."
+        30.0,
+        gt=0,
+        description="kidnapped: a look (the hypotheses fitted, the whole map searched) at the first scan and "
+        "after each this many deg of turning ...",
     )
     look_distance: float = Field(0.25, gt=0, description="... or m of motion (odometry)")
     confirm_looks: int = Field(
-        3, ge=1, description="kidnapped: global finds that must agree (carried by odometry) before the pose is taken ..."
+        3, ge=1, description="kidnapped: looks that must verify the one hypothesis left before its pose is taken ..."
     )
     confirm_turn_deg: float = Field(
         90.0, ge=0, description="... over at least this much turning (different views of the place) and ..."
@@ -205,8 +209,27 @@ class RelocalizationConfig(BaseModel):
         description="... this many m of motion (NavTopo's start-up's confirm_span: a building symmetric under a half "
         "turn fits one place's views turning on the spot as well as the other's)",
     )
-    confirm_xy: float = Field(0.3, gt=0, description="m: two finds agree when this close, carried to one time by odometry ...")
+    confirm_xy: float = Field(
+        0.3, gt=0, description="m: a look verifies a hypothesis when the fit from where odometry carried it moves it no more ..."
+    )
     confirm_yaw_deg: float = Field(5.0, gt=0, description="... and this many deg")
+    drop_after: int = Field(
+        3,
+        ge=1,
+        description="kidnapped: looks against a hypothesis (the scan fits elsewhere better by min_margin, or it does "
+        "not fit there at all), less those for it, that drop it (NavTopo's start-up's)",
+    )
+    confirm_alone_distance: float = Field(
+        1.0, ge=0, description="kidnapped: m a hypothesis must be followed after its last rival fell before it is taken ..."
+    )
+    confirm_alone_looks: int = Field(3, ge=1, description="... and looks that verify it meanwhile (NavTopo's start-up's)")
+    max_hypotheses: int = Field(12, ge=1, description="kidnapped: hypotheses followed at once (the least supported give way)")
+    recheck_looks: int = Field(
+        12,
+        ge=0,
+        description="kidnapped: a place found while others are followed must fit this many last looks about as "
+        "well as the best place then (NavTopo's start-up's far_history)",
+    )
     explore_after_deg: float = Field(
         360.0,
         ge=0,
@@ -299,13 +322,21 @@ class Relocalizer:
                     break
         return chosen
 
-    def _decide(self, points: NDArray, candidates: list[NDArray]) -> tuple[NDArray[np.float64], float] | None:
-        """Refine each candidate by the Gauss-Newton fit; the best if it fits and has no close rival."""
+    def _refined(self, points: NDArray, candidates: list[NDArray]) -> list[tuple[float, NDArray[np.float64]]]:
+        """Each candidate refined by the Gauss-Newton fit, with its inlier share, best first."""
         refined = []
         for pose in candidates:
             fitted = self.scan_to_map.refine(points, pose, prior_scale=3.0)
             refined.append((self.scan_to_map.inlier_share(points, fitted), fitted))
         refined.sort(key=lambda r: -r[0])
+        return refined
+
+    def _decide(self, points: NDArray, candidates: list[NDArray]) -> tuple[NDArray[np.float64], float] | None:
+        """Refine each candidate by the Gauss-Newton fit; the best if it fits and has no close rival."""
+        return self._decide_refined(self._refined(points, candidates))
+
+    def _decide_refined(self, refined: list[tuple[float, NDArray[np.float64]]]) -> tuple[NDArray[np.float64], float] | None:
+        """Of refined places (best first): the best if it fits and has no close rival."""
         best_share, best = refined[0]
         self.ambiguous = False
         if best_share < self.config.min_inlier_share:
@@ -332,11 +363,18 @@ class Relocalizer:
         return self._decide(points, self._best_distinct(scores, positions, yaws, self.config.refine))
 
     def everywhere(self, points: NDArray) -> tuple[NDArray[np.float64], float] | None:
-        """Search all mapped free space the robot fits in, coarse then fine."""
+        """Search all mapped free space the robot fits in, coarse then fine: the best place if it fits
+        and no distinct one fits about as well."""
+        found = self.places(points)
+        return self._decide_refined(found) if found else None
+
+    def places(self, points: NDArray) -> list[tuple[float, NDArray[np.float64]]]:
+        """Every place the global search refines (coarse seeds, then fine windows, then the fit), with
+        its inlier share, best first; empty when the scan has too few points or nowhere fits the robot."""
         c = self.config
         near = self._subsample(points, c.global_range)
         if len(near) < 20:
-            return None
+            return []
         if self._global_positions is None:
             step = max(int(round(c.global_step_xy / self.resolution)), 1)
             fits = np.unpackbits(self._fits, count=int(np.prod(self._fits_shape))).reshape(self._fits_shape)
@@ -345,7 +383,7 @@ class Relocalizer:
             self._global_positions = GridFrame(self.origin, self.resolution).to_world(cells)
         positions = self._global_positions
         if not len(positions):
-            return None
+            return []
         yaws = np.radians(np.arange(-180.0, 180.0, c.global_step_yaw_deg))
         coarse = self._scores(near, positions, yaws)
         seeds = self._best_distinct(coarse, positions, yaws, 3 * c.refine)
@@ -358,4 +396,4 @@ class Relocalizer:
             fine = self._scores(fine_points, window, yaw_window)
             k, i = np.unravel_index(int(np.argmax(fine)), fine.shape)
             candidates.append(np.array([window[i, 0], window[i, 1], yaw_window[k]]))
-        return self._decide(fine_points, candidates)
+        return self._refined(fine_points, candidates)

@@ -10,21 +10,37 @@ accepted fit moves ``map_from_odom``; after ``lost_after`` rejected fits in a ro
 the estimate is searched again. The tracker is ``lost`` from a window search that finds nothing to
 the next accepted fit (the system's failure stage ``localization`` meanwhile).
 
-Kidnapped (the protocol's ``initial_pose: none``: no pose given): the whole map is searched at the
-first scan and after every ``look_turn_deg`` of turning or ``look_distance`` of motion; a find that
-agrees with the last one carried by odometry (``confirm_xy``, ``confirm_yaw_deg``) confirms it, one
-that does not replaces it, a search that finds two places that fit about as well drops it (the
-place is not told apart from here), and one that fits nowhere is no evidence. The pose is taken
-after ``confirm_looks`` agreeing finds spread over ``confirm_turn_deg`` of turning and
-``confirm_distance`` of motion: one view of a place can fit a look-alike elsewhere, and a building
-symmetric under a half turn fits every view from one spot (on loop_office_door, with its door shut
-since mapping, a start committed 19 m off after 90° of turning and a metre); NavTopo's start-up
-asks for its places 3 m apart.
+Kidnapped (the protocol's ``initial_pose: none``: no pose given): the places the scan may be at are
+followed as hypotheses and weighed look by look, as NavTopo's start-up does. A look comes at the
+first scan and after every ``look_turn_deg`` of turning or ``look_distance`` of motion. Each look
+fits the scan where odometry carried each hypothesis (``ScanToMap.refine``; a fit that moves it more
+than ``confirm_xy`` or ``confirm_yaw_deg`` does not verify it) and searches the whole map
+(``Relocalizer.places``). A look where the scan fits somewhere weighs the hypotheses against the best
+fit: one that fits within ``min_margin`` of it is verified; one that does not is counted against;
+when the look tells them apart so (some verified, some not), the verified ones get one off their
+count. A look that verifies all of them, or fits nowhere, is no evidence for one place over another.
+A hypothesis is dropped when its count reaches ``drop_after``. A place the search finds within
+``min_margin`` of the best that no hypothesis explains becomes one, unless others are followed and
+it fits one of the last ``recheck_looks`` looks worse than the best place then did (a look-alike
+dropped where the views told it apart would come back wherever they do not).
+
+The pose is taken when one hypothesis is left, the look verified it, and it has been verified at
+``confirm_looks`` looks spread over ``confirm_turn_deg`` of turning and ``confirm_distance`` of motion,
+the last ``confirm_alone_looks`` of them over ``confirm_alone_distance`` since its last rival fell.
+One view of a place can fit a look-alike elsewhere, and a building symmetric under a half turn fits
+every view from one spot (on loop_office_door, with its door shut since mapping, a start committed
+19 m off after 90° of turning and a metre). The rule before (``ba0c2d7``-``3191cbf``) followed one
+candidate and dropped it at any look that fitted a second place about as well: on a floor where most
+views fit two places, the agreeing finds it needed seldom came in a row, and three start-ups of 20
+on loop_office_door ran out of time.
 
 Poses are map-frame ``[x, y, yaw]`` float64; scans are (N, 2) obstacle points in the robot frame.
 """
 
 from __future__ import annotations
+
+from collections import deque
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,28 +54,45 @@ from .localization import RelocalizationConfig, Relocalizer, ScanToMap, ScanToMa
 from .occupancy import GridMap
 
 #: the tracker's counters, in the order the system reports them
-COUNTERS = ("fits", "fits_rejected", "relocalizations", "global_searches", "relocalizations_failed", "global_finds_replaced")
+COUNTERS = ("fits", "fits_rejected", "relocalizations", "global_searches", "relocalizations_failed", "hypotheses_dropped")
 
 
-class Candidate:
-    """A kidnapped start's pose as the global searches have found it: ``map_from_odom``, and how
-    many finds have agreed, over how much turning and motion."""
+class Look(NamedTuple):
+    """A kidnapped start's past look: the odometry pose, the scan's points and the best inlier share
+    any place had then."""
 
-    def __init__(self, map_from_odom: NDArray[np.float64], odom_pose: NDArray[np.float64]) -> None:
+    odom_pose: NDArray[np.float64]
+    points: NDArray
+    best: float
+
+
+class Hypothesis:
+    """A kidnapped start's pose as the global searches found it and the looks since have weighed it:
+    ``map_from_odom``, the looks for and against it, and the motion since it was found and since its
+    last rival fell."""
+
+    def __init__(self, map_from_odom: NDArray[np.float64], odom_pose: NDArray[np.float64], alone: bool) -> None:
         self.map_from_odom = map_from_odom
-        self.agreed = 1
-        self.odometer = Odometer()  # since its first find
+        self.support = 1  # looks that verified it
+        self.against = 0  # looks against it, less those for it (never below zero)
+        self.odometer = Odometer()  # since it was found
         self.odometer.update(odom_pose)
+        self.alone_since: float | None = 0.0 if alone else None  # its odometer when its last rival fell
+        self.alone_looks = 0  # looks that verified it since then
 
     @property
     def turned(self) -> float:
-        """rad of odometry turning since its first find."""
+        """rad of odometry turning since it was found."""
         return self.odometer.radians
 
     @property
     def moved(self) -> float:
-        """m of odometry motion since its first find."""
+        """m of odometry motion since it was found."""
         return self.odometer.metres
+
+    def alone_for(self) -> float:
+        """m of motion since its last rival fell (-1: rivals live)."""
+        return -1.0 if self.alone_since is None else self.moved - self.alone_since
 
 
 class PoseTracker:
@@ -101,8 +134,9 @@ class PoseTracker:
         self._odometry: LidarOdometry | None = None
         self._localized = False
         self.kidnapped = False  # no initial pose given this trial: the pose is searched for everywhere
-        self._candidate: Candidate | None = None  # a kidnapped start's global finds, confirmed over motion
+        self.hypotheses: list[Hypothesis] = []  # a kidnapped start's places, weighed look by look
         self._last_look: NDArray[np.float64] | None = None  # odometry at the last global search (kidnapped)
+        self._looks: deque[Look] = deque(maxlen=self.relocalization.recheck_looks)  # the last looks (kidnapped)
         self.localize_started: float | None = None
         self.localized_at: float | None = None  # the stamp the pose was found on the map ...
         self.localized_pose: NDArray[np.float64] | None = None  # ... and the pose found then (map frame)
@@ -126,13 +160,23 @@ class PoseTracker:
 
     @property
     def wants_turning(self) -> bool:
-        """A kidnapped start's candidate that lacks only the turning to be taken (its finds agree, over
-        enough motion): a drive straight on turns little; a turn in place completes it."""
-        c, config = self._candidate, self.relocalization
-        if c is None or self._localized:
+        """A kidnapped start's hypothesis that lacks only the turning to be taken (alone, verified
+        enough, over enough motion): a drive straight on turns little; a turn in place completes it."""
+        if len(self.hypotheses) != 1 or self._localized:
             return False
-        enough = c.agreed >= config.confirm_looks and c.moved >= config.confirm_distance
-        return enough and c.turned < np.radians(config.confirm_turn_deg)
+        h, config = self.hypotheses[0], self.relocalization
+        return self._confirmed(h, turning=False) and h.turned < np.radians(config.confirm_turn_deg)
+
+    def _confirmed(self, h: Hypothesis, turning: bool = True) -> bool:
+        """The commitment rule for the one hypothesis left (module docstring)."""
+        config = self.relocalization
+        return (
+            h.support >= config.confirm_looks
+            and h.moved >= config.confirm_distance
+            and (not turning or h.turned >= np.radians(config.confirm_turn_deg))
+            and h.alone_for() >= config.confirm_alone_distance
+            and h.alone_looks >= config.confirm_alone_looks
+        )
 
     @property
     def localized(self) -> bool:
@@ -218,43 +262,100 @@ class PoseTracker:
         return pose
 
     def _kidnapped_look(self, points: NDArray, odom_pose: NDArray[np.float64]) -> NDArray[np.float64] | None:
-        """A kidnapped start's search when due (the module docstring): ``map_from_odom`` once the
-        global finds have confirmed one, else None."""
+        """A kidnapped start's look when due (the module docstring): ``map_from_odom`` once one
+        hypothesis is left and confirmed, else None."""
         config = self.relocalization
-        candidate = self._candidate
-        if candidate is not None:
-            candidate.odometer.update(odom_pose)
+        for h in self.hypotheses:
+            h.odometer.update(odom_pose)
         if self._last_look is not None:
             step = se2.between(self._last_look, odom_pose)
             turned, moved = abs(float(step[2])), float(np.hypot(step[0], step[1]))
             if turned < np.radians(config.look_turn_deg) and moved < config.look_distance:
                 return None
         self._last_look = odom_pose.copy()
-        if self.relocalizer is None:
+        if self.relocalizer is None or self.localizer is None:
             raise RuntimeError("a kidnapped start needs a map (use_map) to search")
         self.counters["global_searches"] += 1
-        found = self.relocalizer.everywhere(points)
-        if found is None:
+        places = [(share, pose) for share, pose in self.relocalizer.places(points) if share >= config.min_inlier_share]
+        checks = [self._verify(h, points, odom_pose) for h in self.hypotheses]
+        shares = [share for share, _ in places] + [check[0] for check in checks if check is not None]
+        if not shares:
             self.counters["relocalizations_failed"] += 1
-            if self.relocalizer.ambiguous:
-                self._candidate = None  # two places fit about as well from here: the candidate is not told apart
+            return None  # the scan fits nowhere: no evidence for any place over another
+        best = max(shares)
+        verified = self._weigh(checks, best, odom_pose)
+        self._add_places(places, best, odom_pose)
+        self._looks.append(Look(odom_pose.copy(), points, best))
+        if len(self.hypotheses) > config.max_hypotheses:
+            self.hypotheses.sort(key=lambda h: (h.against, -h.support))
+            self.hypotheses = self.hypotheses[: config.max_hypotheses]
+        if len(self.hypotheses) != 1:
+            for h in self.hypotheses:
+                h.alone_since, h.alone_looks = None, 0
             return None
-        map_from_odom = se2.compose(found[0], se2.inverse(odom_pose))
-        if candidate is not None:
-            predicted = se2.compose(candidate.map_from_odom, odom_pose)
-            off = se2.between(predicted, found[0])
-            if float(np.hypot(off[0], off[1])) <= config.confirm_xy and abs(float(np.degrees(off[2]))) <= config.confirm_yaw_deg:
-                candidate.agreed += 1
-                candidate.map_from_odom = map_from_odom  # the latest find: odometry drifts meanwhile
+        h = self.hypotheses[0]
+        if h.alone_since is None:
+            h.alone_since, h.alone_looks = h.moved, 0  # its last rival fell at this look
+        return h.map_from_odom if h in verified and self._confirmed(h) else None
+
+    def _weigh(self, checks: list[tuple[float, NDArray[np.float64]] | None], best: float, odom_pose: NDArray) -> list[Hypothesis]:
+        """This look's evidence on the hypotheses (their ``checks`` by ``_verify``; ``best``: the best
+        share of any place): counts for and against, the dropped ones dropped; the verified ones."""
+        config = self.relocalization
+        verified = [h for h, check in zip(self.hypotheses, checks, strict=True) if check and check[0] >= best - config.min_margin]
+        telling = len(verified) < len(self.hypotheses)  # some verified, some not: the look tells places apart
+        for h, check in zip(self.hypotheses, checks, strict=True):
+            if h in verified:
+                assert check is not None
+                h.support += 1
+                h.alone_looks += 1
+                h.against = max(h.against - int(telling), 0)
+                h.map_from_odom = se2.compose(check[1], se2.inverse(odom_pose))  # odometry drifts meanwhile
             else:
-                self.counters["global_finds_replaced"] += 1
-                candidate = None
-        if candidate is None:
-            candidate = self._candidate = Candidate(map_from_odom, odom_pose)
-        spread = candidate.turned >= np.radians(config.confirm_turn_deg) and candidate.moved >= config.confirm_distance
-        if candidate.agreed >= config.confirm_looks and spread:
-            return candidate.map_from_odom
-        return None
+                h.against += 1
+        before = len(self.hypotheses)
+        self.hypotheses = [h for h in self.hypotheses if h.against < config.drop_after]
+        self.counters["hypotheses_dropped"] += before - len(self.hypotheses)
+        return verified
+
+    def _add_places(self, places: list[tuple[float, NDArray[np.float64]]], best: float, odom_pose: NDArray) -> None:
+        """The global search's places (best first) about as good as ``best`` that no hypothesis explains
+        become hypotheses; while others are followed, only if they explain the last looks too."""
+        config = self.relocalization
+        followed = bool(self.hypotheses)
+        for share, pose in places:
+            if share < best - config.min_margin:
+                break
+            here = [se2.compose(h.map_from_odom, odom_pose) for h in self.hypotheses]
+            map_from_odom = se2.compose(pose, se2.inverse(odom_pose))
+            if all(np.hypot(*(pose[:2] - p[:2])) >= config.distinct_distance for p in here) and (
+                not followed or self._explains_past(map_from_odom)
+            ):
+                self.hypotheses.append(Hypothesis(map_from_odom, odom_pose, alone=not here))
+
+    def _explains_past(self, map_from_odom: NDArray[np.float64]) -> bool:
+        """Whether a place found while others are followed (``map_from_odom``) fits each of the last
+        looks about as well as the best place then (a look-alike dropped where the views told it
+        apart is found again where they do not: it must not come back)."""
+        assert self.localizer is not None
+        margin = self.relocalization.min_margin
+        for look in self._looks:
+            fitted = self.localizer.refine(look.points, se2.compose(map_from_odom, look.odom_pose))
+            if self.localizer.inlier_share(look.points, fitted) < look.best - margin:
+                return False
+        return True
+
+    def _verify(self, h: Hypothesis, points: NDArray, odom_pose: NDArray) -> tuple[float, NDArray[np.float64]] | None:
+        """The scan fitted where odometry carried ``h``: (inlier share, pose) if the fit stays within
+        ``confirm_xy`` and ``confirm_yaw_deg`` of it, else None."""
+        assert self.localizer is not None
+        config = self.relocalization
+        predicted = se2.compose(h.map_from_odom, odom_pose)
+        fitted = self.localizer.refine(points, predicted)
+        off = se2.between(predicted, fitted)
+        if np.hypot(off[0], off[1]) > config.confirm_xy or abs(float(np.degrees(off[2]))) > config.confirm_yaw_deg:
+            return None
+        return self.localizer.inlier_share(points, fitted), fitted
 
     def _relocalize(self, points: NDArray, guess: NDArray, everywhere: bool) -> NDArray[np.float64] | None:
         """The pose of the scan on the map: the window around ``guess``, then (if allowed) all of it."""
