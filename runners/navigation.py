@@ -297,7 +297,8 @@ def run_one_trial(
     protocol = protocol or TrialProtocol()
     first = first or FirstPlan()
     sim.reset(trial.start, stream=(TRIAL_STREAM, index))
-    limit = timeout_s(trial.shortest_m, scenario.spec.robot.max_linear)
+    mapped_m = mapped_shortest_m(scenario, trial)
+    limit = timeout_s(trial.shortest_m, scenario.spec.robot.max_linear, mapped_m or 0.0)
     outcome = TrialOutcome()
     tracking = Tracking(scenario.route_start, anchors)
     try:
@@ -323,7 +324,7 @@ def run_one_trial(
     startup = startup_check(outcome.stats, tracking, rows, protocol.goal_tolerance)
     if startup is not None:
         diagnostics["startup_localization"] = startup
-    diagnostics.update(extra_efficiencies(scenario, trial, rows, startup if outcome.success else None, outcome.success))
+    diagnostics.update(extra_efficiencies(scenario, trial, rows, startup if outcome.success else None, outcome.success, mapped_m))
     record = trial_record(
         entry.name,
         index,
@@ -386,13 +387,28 @@ def startup_check(stats: dict[str, Any], tracking: Tracking, rows: NDArray, tole
     }
 
 
+def mapped_shortest_m(scenario: Scenario, trial: Any) -> float | None:
+    """On a scene with ``world.changes``: the shortest path from the trial's start to its goal in the
+    world as it was mapped (None elsewhere, or where there is none)."""
+    if scenario.navigation_world is scenario.world:
+        return None
+    path = shortest_path(scenario.world, scenario.passable, trial.start[:2], trial.goal)
+    return None if path is None else polyline_length(path)
+
+
 def extra_efficiencies(
-    scenario: Scenario, trial: Any, rows: NDArray, startup: dict[str, Any] | None, success: bool
+    scenario: Scenario,
+    trial: Any,
+    rows: NDArray,
+    startup: dict[str, Any] | None,
+    success: bool,
+    mapped_m: float | None = None,
 ) -> dict[str, Any]:
     """A successful trial's efficiency from the moment the system committed to its pose
     (``efficiency_after_startup``: the true shortest path from where the robot was then, over the
     metres driven after), and, on a scene with ``world.changes``, against the shortest path in the
-    world as it was mapped (``efficiency_mapped_world``: what discovering the change cost)."""
+    world as it was mapped (``efficiency_mapped_world``: what discovering the change cost; ``mapped_m``,
+    that path's length, by ``mapped_shortest_m``)."""
     out: dict[str, Any] = {}
     if not success or not len(rows):
         return out
@@ -408,10 +424,8 @@ def extra_efficiencies(
             if path is not None:
                 shortest = polyline_length(path)
                 out["efficiency_after_startup"] = round(efficiency(shortest, travelled - driven), 6)
-    if scenario.navigation_world is not scenario.world:
-        path = shortest_path(scenario.world, scenario.passable, trial.start[:2], trial.goal)
-        if path is not None:
-            out["efficiency_mapped_world"] = round(efficiency(polyline_length(path), travelled), 6)
+    if mapped_m is not None:
+        out["efficiency_mapped_world"] = round(efficiency(mapped_m, travelled), 6)
     return out
 
 

@@ -13,6 +13,8 @@ from shapely.geometry import LineString, MultiPoint, box
 from shapely.ops import unary_union
 
 from navkit.types import Command
+from runners.metrics import timeout_s
+from runners.navigation import mapped_shortest_m
 from runners.sim import Simulator
 from scenarios import load_scenario
 from scenarios.generators import WALL_M, ring_building
@@ -97,6 +99,20 @@ def test_a_trial_the_change_cuts_off_takes_the_way_round_the_ring(tmp_path):
     # a trial the change does not touch keeps its length
     untouched = make_trial(scenario.world, scenario.passable, 1, (4.0, 20.0, 0.0), (16.0, 20.0))
     assert scenario.trials[1].shortest_m == pytest.approx(untouched.shortest_m, rel=1e-9)
+
+
+def test_a_changed_world_gives_the_way_the_map_promised_time_too(tmp_path):
+    """The runner's time limit in a changed world allows for the way as mapped (12 m along the south
+    side, to the shut stretch) besides the way round now; without changes it is the 3x rule."""
+    changed = load_scenario(write(tmp_path, square_ring(CLOSED_SOUTH)))
+    trial, speed = changed.trials[0], changed.spec.robot.max_linear
+    mapped = mapped_shortest_m(changed, trial)
+    assert mapped == pytest.approx(12.0, rel=1e-3)
+    limit = timeout_s(trial.shortest_m, speed, mapped)
+    assert limit == pytest.approx(3 * (trial.shortest_m + 12.0) / speed + 60.0, rel=1e-3)
+    assert limit > timeout_s(trial.shortest_m, speed) + 3 * 12.0 / speed - 1e-6
+    plain = load_scenario(write(tmp_path, square_ring([]), "plain.yaml"))
+    assert mapped_shortest_m(plain, plain.trials[0]) is None
 
 
 def test_trial_ends_inside_a_change_or_cut_off_by_one_are_refused_naming_the_trial(tmp_path):

@@ -59,6 +59,7 @@ def test_an_unknown_ending_is_refused():
 def test_timeout_is_three_times_the_shortest_path_at_full_speed_plus_a_minute():
     assert timeout_s(80.0, 1.0) == pytest.approx(300.0)
     assert timeout_s(80.0, 0.5) == pytest.approx(540.0)
+    assert timeout_s(80.0, 1.0, mapped_m=40.0) == pytest.approx(420.0)  # a changed world: the way as mapped too
 
 
 def test_trajectory_length_sums_the_2d_steps():
