@@ -135,6 +135,17 @@ def test_the_baseline_that_finds_no_fit_on_its_map_in_time_fails_at_start_up(tin
     assert record.sim_time_s == pytest.approx(2.2, abs=0.25)
 
 
+def test_the_kidnapped_baseline_that_confirms_no_place_in_time_says_why_at_start_up(tiny, sim, tmp_path):
+    """Kidnapped on a map without a wall (kidnapped timeout 2 s): no place ever fits, and the detail
+    says so, with the looks made."""
+    folder = _metric_map(tiny, tmp_path / "blank", walls=False)
+    system = _metric_grid(tiny, sim, folder, relocalization={"kidnapped_timeout": 2.0})
+    record = _run(tiny, sim, "metric_grid", system, _trial([1.0, 0.0, 0.0], [10.0, 0.0]), TrialProtocol(initial_pose="none"))
+    assert (record.reason, record.failure_stage) == ("not_localized", "startup")
+    assert record.detail.startswith("no pose confirmed on the map in 2 s: no place fits the scan after ")
+    assert system.tracker.counters["global_searches"] >= 2 and not system.tracker.hypotheses
+
+
 def test_the_baseline_driving_into_a_cabinet_its_map_lacks_fails_in_the_follower(tiny, sim, tmp_path):
     """The boxes left out of the map, no return taken for a new obstacle and no scan guard: the path
     cuts the inner corner of the L through the pillar or the cabinet, and the robot hits one."""

@@ -360,8 +360,10 @@ class MetricGrid:
         past its first full turn, moves (``_explore``) or turns to confirm its candidate."""
         limit = self.config.relocalization
         if self.tracker.search_timed_out(obs.stamp):
-            seconds = limit.kidnapped_timeout if self.tracker.kidnapped else limit.timeout
-            detail = f"no fit on the map {self._searched()} in {seconds:g} s"
+            if self.tracker.kidnapped:
+                detail = f"no pose confirmed on the map in {limit.kidnapped_timeout:g} s: {self._weighed()}"
+            else:
+                detail = f"no fit on the map {self._searched()} in {limit.timeout:g} s"
             self.status = NavStatus(Status.FAILED, "not_localized", FailureStage.STARTUP, detail)
             return Command()
         self._keep_stage()
@@ -452,6 +454,17 @@ class MetricGrid:
         around = "" if given is None else f"around ({given[0]:.2f}, {given[1]:.2f}, {np.degrees(given[2]):.0f} deg) "
         counters = self.tracker.counters
         return f"{around}({counters['relocalizations']} searches, {counters['global_searches']} over the whole map)"
+
+    def _weighed(self) -> str:
+        """A kidnapped start's hypotheses as they stand (why none was taken)."""
+        tracker = self.tracker
+        looks = tracker.counters["global_searches"]
+        places = len(tracker.hypotheses)
+        if places == 0:
+            return f"no place fits the scan after {looks} looks over the whole map"
+        if places == 1:
+            return f"one place fits after {looks} looks over the whole map, not yet confirmed over the motion"
+        return f"{places} places fit about as well after {looks} looks over the whole map (none told apart)"
 
     def _following(self, pose: NDArray, path: NDArray[np.float64]) -> str:
         assert self._goal is not None
