@@ -52,7 +52,7 @@ from navkit.types import Command, FailureStage, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.mapping import GraphMaintainer
-from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrid, UnionGrids, path_positions
+from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrid, UnionGrids, bypasses, path_positions
 from navtopo.scan_matching import prepare
 from navtopo.startup import Hypothesis, Localization, Startup
 
@@ -194,6 +194,7 @@ class Navigator:
     _odometer: Odometer = field(default_factory=Odometer)  # of this trial
     _lost_since: float | None = None  # the odometer at the first of the "lost" updates in a row
     _removed: dict[tuple[int, int], str] = field(default_factory=dict)  # edges removed this trial, and why
+    _added: list[tuple[int, int]] = field(default_factory=list)  # edges added this trial (``_bypass``)
     _shut_since: tuple[tuple[int, int], float] | None = None  # the route's edge new obstacles shut, since when
     _latest_new: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))  # this scan's, v_cur's frame
     _aimed: tuple[tuple[int, tuple[int, ...]], int] | None = None  # ((v_cur, route), route points the lookahead passed)
@@ -223,6 +224,7 @@ class Navigator:
                 "scan_plans",
                 "recoveries",
                 "edges_shut_ahead",
+                "bypass_edges",
                 "scan_guard_stops",
             ],
             0,
@@ -247,6 +249,9 @@ class Navigator:
         self.explorer.reset()
         self._tentative = None
         self._odometer, self._lost_since = Odometer(), None
+        for p, q in self._added:  # this trial's edges: the map as it was loaded for the next
+            self.graph.remove_edge(p, q)
+        self._added = []
         self._removed = {}
         self._shut_since = None
         self._latest_new = np.zeros((0, 2))
@@ -577,9 +582,28 @@ class Navigator:
         self._shut_since = None
         self.counters["edges_removed"] += 1
         self.counters["edges_shut_ahead"] += 1
+        positions = path_positions(self.graph, route)
+        self._bypass(edge[1], positions[leg + 1])
         self.global_planner.remove_edge(*edge)
         self._removed[edge] = "shut ahead"
         return True
+
+    def _bypass(self, vertex: int, where: NDArray) -> None:
+        """An edge into ``vertex`` found shut where ``vertex``'s own position (``where``, in v_cur's frame)
+        lies under this scan's new obstacles (a door shut on the spot the location was made at): the
+        route through it need not pass there. Each two of its neighbours that its union grid joins
+        round the obstacles get an edge of this trial (``planning.bypasses``; counted,
+        ``bypass_edges``; gone at reset)."""
+        new = self._latest_new
+        if not len(new) or float(np.hypot(*(new[:, :2] - where[:2]).T).min()) > self.local.tight:
+            return
+        blocked = transform_points(inverse(where), new[:, :2])
+        for p, q, pose_pq, metres in bypasses(self.graph, self.unions, self.local, vertex, blocked, self.global_planner.removed):
+            self.graph.add_edge(p, q, pose_pq)
+            self.graph.set_edge_length(p, q, metres)
+            self._added.append((p, q))
+            self.unions.forget({p, q})
+            self.counters["bypass_edges"] += 1
 
     def _recover(self, union: UnionGrid, pose: NDArray, target: NDArray) -> bool:
         """A failed local plan that the map alone allows (the remembered obstacles stopped it): forget

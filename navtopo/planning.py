@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -177,6 +177,33 @@ class GlobalPlanner:
     def nbytes(self) -> int:
         arrays = [a for a in (self._distance, self._toward_goal) if a is not None]
         return int(sum(a.nbytes for a in arrays))
+
+
+def bypasses(
+    graph: TopologicalGraph,
+    unions: UnionGrids,
+    local: LocalPlanner,
+    vertex: int,
+    blocked_xy: NDArray,
+    removed: Collection[frozenset[int]] = (),
+) -> list[tuple[int, int, NDArray[np.float64], float]]:
+    """Ways round a location whose position new obstacles cover (``blocked_xy``, (N, 2) in
+    ``vertex``'s frame): each two of its neighbours, not joined already (nor by an edge ``removed``),
+    that the local planner joins through ``vertex``'s union grid round the obstacles, as
+    ``(p, q, T_pq, metres of the way)``. A door shut on the spot a location was made at shuts every
+    edge into it, though the rooms and corridors round it may still join (a corridor's far part and
+    a room whose door lies beyond the shut one)."""
+    union = unions.get(vertex)
+    neighbours = graph.neighbours(vertex)
+    found = []
+    for i, (p, pose_p) in enumerate(neighbours):
+        for q, pose_q in neighbours[i + 1 :]:
+            if graph.has_edge(p, q) or frozenset((p, q)) in removed:
+                continue
+            planned = local.plan(union, pose_p, pose_q[:2], blocked_xy)
+            if planned is not None:
+                found.append((p, q, compose(inverse(pose_p), pose_q), planned.length))
+    return found
 
 
 def path_positions(graph: TopologicalGraph, path: list[int]) -> NDArray[np.float64]:
@@ -421,6 +448,11 @@ class UnionGrids:
         keep = (along <= reach) & (np.hypot(positions[:, 0], positions[:, 1]) <= self.config.union_radius)
         keep[0] = False
         return tuple((int(route[i]), (float(p[0]), float(p[1]), float(p[2]))) for i, p in enumerate(positions) if keep[i])
+
+    def forget(self, vertices: set[int]) -> None:
+        """Drop the union grids of ``vertices`` (their neighbours changed)."""
+        for key in [key for key in self._cache if key[0] in vertices]:
+            del self._cache[key]
 
     def take_build_ms(self) -> float:
         """Milliseconds spent building union grids since the last call."""

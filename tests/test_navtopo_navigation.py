@@ -569,6 +569,39 @@ def test_an_edge_ahead_shut_by_new_obstacles_is_told_before_the_robot_gets_there
     assert planner.blocked_leg(union, start, np.array([[9.0, 0.0], [13.0, 0.0]]), far) is None
 
 
+def test_a_door_shut_on_a_locations_own_spot_leaves_ways_round_it_between_its_neighbours():
+    """A corridor along y (x in [-1, 1]) with a room west of it (x in [-6, -1], y in [-4, -1], its door
+    at y in [-3, -2]); location 1 at the corridor's spot (0, 0), 0 north of it, 2 south, 3 in the room.
+    A door shut across the corridor on location 1's spot: the room and the corridor's south part still
+    join through 1's grid (2-3, the length of that way), the north part joins neither."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids, bypasses
+
+    def paint(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        corridor = (np.abs(x) < 1.0) & (np.abs(y) < 10.0)
+        room = (x > -6.0) & (x < -1.0) & (y > -4.0) & (y < -1.0)
+        door = (x >= -1.2) & (x <= -0.9) & (y > -3.0) & (y < -2.0)
+        free = corridor | room | door
+        walls = ~free & (np.abs(x) < 1.2) & (np.abs(y) < 10.2) | ~free & (x > -6.2) & (x < -0.8) & (y > -4.2) & (y < -0.8)
+        return np.where(free, FREE, np.where(walls, OCCUPIED, UNKNOWN))
+
+    poses = [[0.0, 6.0, 0.0], [0.0, 0.0, 0.0], [0.0, -6.0, 0.0], [-3.5, -2.5, 0.0]]
+    graph = _graph(poses, [(0, 1), (1, 2), (1, 3)], [_painted(p, paint) for p in poses])
+    config = PlanningConfig()
+    unions = UnionGrids(graph, GRID, config)
+    local = LocalPlanner(unions, 0.3, config)
+    door = np.array([[x, y] for x in np.arange(-1.0, 1.01, 0.05) for y in (-0.1, 0.0, 0.1)])  # in 1's frame
+    found = bypasses(graph, unions, local, 1, door)
+    assert [(p, q) for p, q, _, _ in found] == [(2, 3)]
+    _, _, pose_23, metres = found[0]
+    assert np.allclose(pose_23, se2.between(poses[2], poses[3]), atol=1e-9)
+    # the way: up the corridor and in by the door, no shorter than the straight line (4.95 m) and
+    # near the way past the door's jamb at (-1, -3): 3.16 + 2.55 m
+    assert np.hypot(3.5, 3.5) <= metres < 5.71 + 0.3
+    # the door open: every two of them join; an edge removed this trial is not made again
+    assert [(p, q) for p, q, _, _ in bypasses(graph, unions, local, 1, np.zeros((0, 2)))] == [(0, 2), (0, 3), (2, 3)]
+    assert bypasses(graph, unions, local, 1, door, removed={frozenset((2, 3))}) == []
+
+
 def test_what_the_scan_shows_on_the_way_stops_a_blind_move(tiny, tiny_graph):
     """Exploring paths are planned in one scan's grid, unknown cells counted free (a door seen at a
     slant), and driving by an unconfirmed hypothesis follows a path in a map that may be another
