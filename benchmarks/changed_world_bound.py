@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
 from navkit.errors import BenchError
+from navkit.grid_planning import densify
 from scenarios import load_scenario
 from scenarios.route_space import polyline_length, shortest_path
 from scenarios.scenario import Scenario
@@ -75,17 +77,7 @@ def known_world(world: World, changes: list[NDArray[np.int64]], known: set[int],
     free = world.free.copy()
     for k in known:
         free[changes[k][:, 0], changes[k][:, 1]] = False
-    padded = np.pad(free, 1, constant_values=False)
-    clearance = (ndimage.distance_transform_edt(padded)[1:-1, 1:-1] - 0.5) * world.resolution
-    return free & (clearance >= radius)
-
-
-def walk(path: NDArray, step: float) -> NDArray[np.float64]:
-    """Points every ``step`` metres along the polyline ``path`` (its ends included)."""
-    lengths = np.hypot(*np.diff(path, axis=0).T)
-    arc = np.concatenate([[0.0], np.cumsum(lengths)])
-    at = np.append(np.arange(0.0, arc[-1], step), arc[-1])
-    return np.stack([np.interp(at, arc, path[:, 0]), np.interp(at, arc, path[:, 1])], axis=1)
+    return replace(world, free=free).eroded(radius)
 
 
 def policy_metres(scenario: Scenario, start: NDArray, goal: NDArray, step: float, sight: float) -> tuple[float, int] | None:
@@ -101,7 +93,7 @@ def policy_metres(scenario: Scenario, start: NDArray, goal: NDArray, step: float
         if path is None:
             return None
         seen_here = None
-        points = walk(path, step)
+        points = densify(path, step)
         for i, point in enumerate(points):
             seen = [k for k in range(len(changes)) if k not in known and in_sight(now, point, changes[k], max_range)]
             if seen:
