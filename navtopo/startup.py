@@ -10,21 +10,22 @@ becomes a hypothesis ``(vertex, pose)``, tracked from then on by odometry and sc
 robot itself (inside its location, or along an edge). While rivals live, a look verifies only by
 the thresholds without a guess.
 
-Evidence against a hypothesis. A look that verifies a hypothesis supports it. A look that fails it
-counts against it only where it tells the hypotheses apart: some other hypothesis was verified at
-that look. A look that verifies none of them (turning on the spot, a scan the matcher cannot use)
-is no evidence for any place over another: it drops nobody, else the right place falls with the
-wrong ones and a look-alike the next look happens to verify is left alone (on a generated wing of
-identical rooms, 7 of 35 start-ups committed 3.6-14 m off that way). Each look against a hypothesis
-adds one to its count against, each look for it takes one off (never below zero): it is dropped
-when the count reaches ``drop_after``, or after ``drop_unverified`` looks in a row that did not
-verify it. A place the scan contradicts falls within ``drop_after`` looks; the right place,
-verified at most looks, and its exact look-alikes, verified as often, stay (dropped after a few
-looks in a row against it, the right place fell by chance among a dozen look-alikes while one of
-them stayed). A hypothesis alone is dropped only after ``drop_unverified`` looks (between
-locations, in a corridor that fixes the pose along it poorly, the matcher refuses looks in a row);
-meanwhile every location is checked once a metre, and a place verified elsewhere becomes a rival
-that the next looks weigh.
+Evidence against a hypothesis: the ledger both systems' start-ups share (``navkit.hypotheses``).
+A look that verifies a hypothesis supports it. A look that fails it counts against it only where it
+tells the hypotheses apart: some other hypothesis was verified at that look. A look that verifies
+none of them (turning on the spot, a scan the matcher cannot use) is no evidence for any place over
+another: it drops nobody, else the right place falls with the wrong ones and a look-alike the next
+look happens to verify is left alone (on a generated wing of identical rooms, 7 of 35 start-ups
+committed 3.6-14 m off that way); nor is a look that verifies all of them. Each telling look against
+a hypothesis adds one to its count against, each telling look for it takes one off (never below
+zero): it is dropped when the count reaches ``drop_after``, or after ``drop_unverified`` looks in a
+row that did not verify it. A place the scan contradicts falls within ``drop_after`` looks; the
+right place, verified at most looks, and its exact look-alikes, verified as often, stay (dropped
+after a few looks in a row against it, the right place fell by chance among a dozen look-alikes
+while one of them stayed). A hypothesis alone is dropped only after ``drop_unverified`` looks
+(between locations, in a corridor that fixes the pose along it poorly, the matcher refuses looks in
+a row); meanwhile every location is checked once a metre, and a place verified elsewhere becomes a
+rival that the next looks weigh.
 
 The far evidence. The matcher lets a few per cent of a grid's walls disagree, and along a corridor of
 identical rooms the places a room apart differ by fewer: by the beams that reach the corridor's end.
@@ -76,6 +77,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.ndimage import maximum_filter1d
 
 from navkit.geometry import between, compose, transform_points, wrap_angle
+from navkit.hypotheses import Tally, settle, weigh
 from navkit.odometer import Odometer
 from navkit.raster import FREE, OCCUPIED, UNKNOWN
 from navkit.scan import azimuth_bins, obstacle_points
@@ -187,18 +189,14 @@ class StartupConfig(BaseModel):
     prior_gate_per_m: float = Field(0.1, ge=0, description="m the gate grows per metre driven (the odometry's drift)")
 
 
-@dataclass
-class Hypothesis:
-    """Where the robot may be: a location and the pose in it, tracked by a graph maintainer of its own."""
+@dataclass(eq=False)
+class Hypothesis(Tally):
+    """Where the robot may be: a location and the pose in it, tracked by a graph maintainer of its own;
+    its looks for and against it in the ledger (``navkit.hypotheses.Tally``)."""
 
     tracker: GraphMaintainer
-    support: int  # looks that verified it
     odometer_start: float  # the robot's odometer when it was found
-    misses: int = 0  # looks against it (another hypothesis verified, it not), less the looks for it since, never below 0
-    unverified: int = 0  # looks in a row that did not verify it
     places: set[int] = field(default_factory=set)  # the locations it was verified in
-    alone_since: float | None = None  # the start-up odometer when its last rival fell (None: rivals live)
-    alone_support: int = 0  # looks that verified it since then
     contradicted: int = 0  # the scan's beams its map contradicted at the last look weighed by the far evidence
     spots: list[NDArray[np.float64]] = field(default_factory=list)  # odometry xy of its verified looks, 0.5 m apart
 
@@ -388,9 +386,7 @@ class Startup:
             tracker.last_verified = True
             self.seen += 1
             self.from_given_pose = True
-            return Hypothesis(
-                tracker, support=1, odometer_start=self._odom.metres, places={vertex}, alone_since=self._odom.metres
-            )
+            return Hypothesis(tracker=tracker, odometer_start=self._odom.metres, places={vertex}, alone_since=self._odom.metres)
         return None
 
     def _carried_prior(self, odom: NDArray) -> NDArray[np.float64] | None:
@@ -469,27 +465,19 @@ class Startup:
         self._recognise(obs, check_all)
 
     def _weigh(self, far: list[bool] | None = None) -> None:
-        """This look's evidence: support for the hypotheses it verified and the far evidence does
-        not count against (``far``); against the others only if it verified one, or by the far
-        evidence; the dropped ones gone; the survivor's time alone."""
-        verified = [h.tracker.last_verified for h in self.hypotheses]
-        telling = any(verified)
-        far = far if far is not None else [False] * len(verified)
-        for h, ok, against in zip(self.hypotheses, verified, far, strict=True):
-            if ok and not against:
-                h.support, h.misses, h.unverified = h.support + 1, max(0, h.misses - 1), 0
-                h.places.add(h.vertex)
-                if (last := self._odom.last) is not None:
-                    h.verified_at(last)
-                h.alone_support += int(h.alone_since is not None)
-            else:
-                h.misses += int(telling or against)
-                h.unverified += int(not ok)
-                self.far_dropped += int(against)
+        """This look's evidence by the ledger's rule (``navkit.hypotheses.weigh``; ``far``: the far
+        evidence counts the look against the hypothesis): the dropped ones gone; each one the look
+        was for, verified in its location here."""
         config = self.config
-        self.hypotheses = [h for h in self.hypotheses if h.misses < config.drop_after and h.unverified < config.drop_unverified]
-        if len(self.hypotheses) == 1 and self.hypotheses[0].alone_since is None:
-            self.hypotheses[0].alone_since, self.hypotheses[0].alone_support = self._odom.metres, 0
+        verified = [h.tracker.last_verified for h in self.hypotheses]
+        self.far_dropped += sum(bool(bad) for bad in far or [])
+        self.hypotheses, looked_for = weigh(
+            self.hypotheses, verified, far, self._odom.metres, config.drop_after, config.drop_unverified
+        )
+        for h in looked_for:
+            h.places.add(h.vertex)
+            if (last := self._odom.last) is not None:
+                h.verified_at(last)
 
     def _recognise(self, obs: Observation, check_all: bool) -> int:
         """New hypotheses from place recognition's ``top_k`` (or every location), verified by scan
@@ -527,14 +515,12 @@ class Startup:
             if not any(self._same_place(h, located.vertex, located.pose) for h in self.hypotheses):
                 tracker = self._tracker(located.vertex, located.pose, obs.odom)
                 tracker.last_verified = True  # this look verified it
-                hypothesis = Hypothesis(tracker, support=1, odometer_start=self._odom.metres, places={located.vertex})
+                hypothesis = Hypothesis(tracker=tracker, odometer_start=self._odom.metres, places={located.vertex})
                 hypothesis.verified_at(obs.odom)
                 self.hypotheses.append(hypothesis)
                 self.seen += 1
                 added += 1
-        alone = self._odom.metres if len(self.hypotheses) == 1 else None
-        for h in self.hypotheses if added else []:  # a new rival: nobody is alone; a first find: alone from now
-            h.alone_since, h.alone_support = alone, 1 if alone is not None else 0
+        settle(self.hypotheses, self._odom.metres)  # a new rival: nobody is alone; a first find: alone from now
         return added
 
     def _far_against(self, obs: Observation) -> list[bool]:
@@ -645,7 +631,7 @@ class Startup:
         moved = self._odom.metres - h.odometer_start
         if h.support < config.confirm_looks or moved < config.confirm_distance:
             return None
-        if h.alone_support < config.confirm_alone_looks or self._odom.metres - h.alone_since < config.confirm_alone_distance:
+        if h.alone_looks < config.confirm_alone_looks or h.alone_for(self._odom.metres) < config.confirm_alone_distance:
             return None
         # a room and its mirror image agree from inside; the corridor outside the door tells them apart
         one_place = config.confirm_distance_one_place

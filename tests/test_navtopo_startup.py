@@ -35,7 +35,11 @@ def _bookkeeping(count: int, **config) -> tuple[Startup, list[Hypothesis]]:
     """A start-up holding ``count`` hypotheses (vertex k each) whose trackers' verdicts are set by hand."""
     startup = Startup(SimpleNamespace(), None, StartupConfig(**config))  # type: ignore[arg-type]
     hypotheses = [
-        Hypothesis(SimpleNamespace(current=k, pose_in_current=np.zeros(3), last_verified=False), 1, 0.0, places={k})  # type: ignore[arg-type]
+        Hypothesis(
+            tracker=SimpleNamespace(current=k, pose_in_current=np.zeros(3), last_verified=False),  # type: ignore[arg-type]
+            odometer_start=0.0,
+            places={k},
+        )
         for k in range(count)
     ]
     startup.hypotheses = list(hypotheses)

@@ -11,8 +11,9 @@ the estimate is searched again. The tracker is ``lost`` from a window search tha
 the next accepted fit (the system's failure stage ``localization`` meanwhile).
 
 Kidnapped (the protocol's ``initial_pose: none``: no pose given): the places the scan may be at are
-followed as hypotheses and weighed look by look, as NavTopo's start-up does. A look comes at the
-first scan and after every ``look_turn_deg`` of turning or ``look_distance`` of motion. Each look
+followed as hypotheses and weighed look by look by the ledger NavTopo's start-up uses too
+(``navkit.hypotheses``). A look comes at the first scan and after every ``look_turn_deg`` of
+turning or ``look_distance`` of motion. Each look
 fits the scan where odometry carried each hypothesis (``ScanToMap.refine``; a fit that moves it more
 than ``confirm_xy`` or ``confirm_yaw_deg`` does not verify it) and searches the whole map
 (``Relocalizer.places``). A look where the scan fits somewhere weighs the hypotheses against the best
@@ -46,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from navkit import geometry as se2
+from navkit.hypotheses import Tally, settle, weigh
 from navkit.odometer import Odometer
 from navkit.odometry import LidarOdometry, OdometryConfig
 from navkit.types import Observation
@@ -66,19 +68,15 @@ class Look(NamedTuple):
     best: float
 
 
-class Hypothesis:
-    """A kidnapped start's pose as the global searches found it and the looks since have weighed it:
-    ``map_from_odom``, the looks for and against it, and the motion since it was found and since its
-    last rival fell."""
+class Hypothesis(Tally):
+    """A kidnapped start's pose as the global searches found it: ``map_from_odom``, its looks for and
+    against it in the ledger (``navkit.hypotheses.Tally``), and the motion since it was found."""
 
-    def __init__(self, map_from_odom: NDArray[np.float64], odom_pose: NDArray[np.float64], alone: bool) -> None:
+    def __init__(self, map_from_odom: NDArray[np.float64], odom_pose: NDArray[np.float64]) -> None:
+        super().__init__()
         self.map_from_odom = map_from_odom
-        self.support = 1  # looks that verified it
-        self.against = 0  # looks against it, less those for it (never below zero)
         self.odometer = Odometer()  # since it was found
         self.odometer.update(odom_pose)
-        self.alone_since: float | None = 0.0 if alone else None  # its odometer when its last rival fell
-        self.alone_looks = 0  # looks that verified it since then
 
     @property
     def turned(self) -> float:
@@ -89,10 +87,6 @@ class Hypothesis:
     def moved(self) -> float:
         """m of odometry motion since it was found."""
         return self.odometer.metres
-
-    def alone_for(self) -> float:
-        """m of motion since its last rival fell (-1: rivals live)."""
-        return -1.0 if self.alone_since is None else self.moved - self.alone_since
 
 
 class PoseTracker:
@@ -136,6 +130,7 @@ class PoseTracker:
         self.kidnapped = False  # no initial pose given this trial: the pose is searched for everywhere
         self.hypotheses: list[Hypothesis] = []  # a kidnapped start's places, weighed look by look
         self._last_look: NDArray[np.float64] | None = None  # odometry at the last global search (kidnapped)
+        self._search_odometer = Odometer()  # motion since the kidnapped search began
         self._looks: deque[Look] = deque(maxlen=self.relocalization.recheck_looks)  # the last looks (kidnapped)
         self.localize_started: float | None = None
         self.localized_at: float | None = None  # the stamp the pose was found on the map ...
@@ -174,7 +169,7 @@ class PoseTracker:
             h.support >= config.confirm_looks
             and h.moved >= config.confirm_distance
             and (not turning or h.turned >= np.radians(config.confirm_turn_deg))
-            and h.alone_for() >= config.confirm_alone_distance
+            and h.alone_for(self._search_odometer.metres) >= config.confirm_alone_distance
             and h.alone_looks >= config.confirm_alone_looks
         )
 
@@ -265,6 +260,7 @@ class PoseTracker:
         """A kidnapped start's look when due (the module docstring): ``map_from_odom`` once one
         hypothesis is left and confirmed, else None."""
         config = self.relocalization
+        self._search_odometer.update(odom_pose)
         for h in self.hypotheses:
             h.odometer.update(odom_pose)
         if self._last_look is not None:
@@ -289,34 +285,31 @@ class PoseTracker:
         if len(self.hypotheses) > config.max_hypotheses:
             self.hypotheses.sort(key=lambda h: (h.against, -h.support))
             self.hypotheses = self.hypotheses[: config.max_hypotheses]
+        settle(self.hypotheses, self._search_odometer.metres)
         if len(self.hypotheses) != 1:
-            for h in self.hypotheses:
-                h.alone_since, h.alone_looks = None, 0
             return None
         h = self.hypotheses[0]
-        if h.alone_since is None:
-            h.alone_since, h.alone_looks = h.moved, 0  # its last rival fell at this look
         return h.map_from_odom if h in verified and self._confirmed(h) else None
 
     def _weigh(self, checks: list[tuple[float, NDArray[np.float64]] | None], best: float, odom_pose: NDArray) -> list[Hypothesis]:
         """This look's evidence on the hypotheses (their ``checks`` by ``_verify``; ``best``: the best
-        share of any place): counts for and against, the dropped ones dropped; the verified ones."""
+        share of any place) by the ledger's rule (``navkit.hypotheses.weigh``): a hypothesis whose fit
+        falls short of the best place's by more than ``min_margin`` is not verified, and that a place
+        fits better counts against it. The dropped ones dropped; those the look was for, their
+        ``map -> odom`` refitted (odometry drifts meanwhile)."""
         config = self.relocalization
-        verified = [h for h, check in zip(self.hypotheses, checks, strict=True) if check and check[0] >= best - config.min_margin]
-        telling = len(verified) < len(self.hypotheses)  # some verified, some not: the look tells places apart
-        for h, check in zip(self.hypotheses, checks, strict=True):
-            if h in verified:
-                assert check is not None
-                h.support += 1
-                h.alone_looks += 1
-                h.against = max(h.against - int(telling), 0)
-                h.map_from_odom = se2.compose(check[1], se2.inverse(odom_pose))  # odometry drifts meanwhile
-            else:
-                h.against += 1
+        verified = [check is not None and check[0] >= best - config.min_margin for check in checks]
         before = len(self.hypotheses)
-        self.hypotheses = [h for h in self.hypotheses if h.against < config.drop_after]
+        fits = {id(h): check for h, check in zip(self.hypotheses, checks, strict=True)}
+        self.hypotheses, looked_for = weigh(
+            self.hypotheses, verified, [not ok for ok in verified], self._search_odometer.metres, config.drop_after
+        )
         self.counters["hypotheses_dropped"] += before - len(self.hypotheses)
-        return verified
+        for h in looked_for:
+            fit = fits[id(h)]
+            assert fit is not None  # a hypothesis the look was for was verified
+            h.map_from_odom = se2.compose(fit[1], se2.inverse(odom_pose))
+        return looked_for
 
     def _add_places(self, places: list[tuple[float, NDArray[np.float64]]], best: float, odom_pose: NDArray) -> None:
         """The global search's places (best first) about as good as ``best`` that no hypothesis explains
@@ -331,7 +324,7 @@ class PoseTracker:
             if all(np.hypot(*(pose[:2] - p[:2])) >= config.distinct_distance for p in here) and (
                 not followed or self._explains_past(map_from_odom)
             ):
-                self.hypotheses.append(Hypothesis(map_from_odom, odom_pose, alone=not here))
+                self.hypotheses.append(Hypothesis(map_from_odom, odom_pose))
 
     def _explains_past(self, map_from_odom: NDArray[np.float64]) -> bool:
         """Whether a place found while others are followed (``map_from_odom``) fits each of the last
