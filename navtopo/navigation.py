@@ -495,9 +495,7 @@ class Navigator:
                 break  # in the goal's location: no edge to remove
             # no way to the next vertex in the union grid (a closed door, an obstacle the map lacks)
             self.counters["plans_failed"] += 1
-            self.counters["edges_removed"] += 1
-            self.global_planner.remove_edge(route[0], route[1])
-            self._removed[(route[0], route[1])] = "no local path"
+            self._remove_edge(route, positions, 0, "no local path", self._recent_obstacles())
         self._timed(t0)
         if planned is None:
             self.counters["plans_failed"] += 1
@@ -580,21 +578,26 @@ class Navigator:
         if obs.stamp - self._shut_since[1] < confirm:
             return False
         self._shut_since = None
-        self.counters["edges_removed"] += 1
         self.counters["edges_shut_ahead"] += 1
-        positions = path_positions(self.graph, route)
-        self._bypass(edge[1], positions[leg + 1])
-        self.global_planner.remove_edge(*edge)
-        self._removed[edge] = "shut ahead"
+        self._remove_edge(route, path_positions(self.graph, route), leg, "shut ahead", self._latest_new)
         return True
 
-    def _bypass(self, vertex: int, where: NDArray) -> None:
-        """An edge into ``vertex`` found shut where ``vertex``'s own position (``where``, in v_cur's frame)
-        lies under this scan's new obstacles (a door shut on the spot the location was made at): the
-        route through it need not pass there. Each two of its neighbours that its union grid joins
-        round the obstacles get an edge of this trial (``planning.bypasses``; counted,
-        ``bypass_edges``; gone at reset)."""
-        new = self._latest_new
+    def _remove_edge(self, route: list[int], positions: NDArray, leg: int, why: str, obstacles: NDArray) -> None:
+        """The route's edge ``leg`` (route[leg] -> route[leg + 1]; ``positions``: the route's vertices in
+        v_cur's frame) removed for this trial, and why (counted, ``edges_removed``; the trial's detail
+        names it); its far vertex bypassed where ``obstacles`` (v_cur's frame) cover its spot."""
+        edge = (route[leg], route[leg + 1])
+        self.counters["edges_removed"] += 1
+        self._bypass(edge[1], positions[leg + 1], obstacles)
+        self.global_planner.remove_edge(*edge)
+        self._removed[edge] = why
+
+    def _bypass(self, vertex: int, where: NDArray, new: NDArray) -> None:
+        """An edge into ``vertex`` found shut or impassable where ``vertex``'s own position (``where``,
+        in v_cur's frame) lies under the obstacles the map lacks (``new``; a door shut on the spot the
+        location was made at): the route through it need not pass there. Each two of its neighbours
+        that its union grid joins round the obstacles get an edge of this trial
+        (``planning.bypasses``; counted, ``bypass_edges``; gone at reset)."""
         if not len(new) or float(np.hypot(*(new[:, :2] - where[:2]).T).min()) > self.local.tight:
             return
         blocked = transform_points(inverse(where), new[:, :2])
@@ -731,9 +734,11 @@ class Navigator:
             self.status = NavStatus(Status.FAILED, "stuck", FailureStage.FOLLOWER, detail)
             return True
         self._stuck_once = True
-        self.counters["edges_removed"] += 1
-        self.global_planner.remove_edge(self._route[0], self._route[1])
-        self._removed[(self._route[0], self._route[1])] = "stuck"
+        route = self._route
+        # the remembered obstacles are in the current location's frame: a route planned from an
+        # earlier one is not bypassed by them
+        obstacles = self._recent_obstacles() if route[0] == self._obstacle_vertex else np.zeros((0, 2))
+        self._remove_edge(route, path_positions(self.graph, route), 0, "stuck", obstacles)
         self._path_vertex = None
         return False
 
