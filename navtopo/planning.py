@@ -123,7 +123,12 @@ class PlanningConfig(BaseModel):
     )
     replan_period: float = Field(2.0, gt=0, description="s of simulated time between local replans in one location")
     new_obstacle_distance: float = Field(0.25, gt=0, description="a return this far from every mapped wall is a new obstacle")
-    new_obstacle_range: float = Field(6.0, gt=0, description="only nearer returns can be new obstacles")
+    new_obstacle_range: float = Field(
+        10.0,
+        gt=0,
+        description="m; only nearer returns can be new obstacles (a door shut after mapping seen from 10 m, not 6: "
+        "docs/DESIGN.md)",
+    )
 
 
 # ---------------------------------------------------------------------------------------------

@@ -98,7 +98,9 @@ class PlanningConfig(BaseModel):
     scan_guard: bool = Field(
         True, description="stop a path the scan shows touching a return and plan again (navkit.obstacles.scan_guard)"
     )
-    new_obstacle_range: float = Field(6.0, gt=0, description="m; only nearer returns can be new obstacles")
+    new_obstacle_range: float = Field(
+        10.0, gt=0, description="m; only nearer returns can be new obstacles (NavTopo's range, docs/DESIGN.md)"
+    )
     progress_distance: float = Field(
         0.5, gt=0, description="m of odometry the robot must cover every progress_time (Nav2's progress checker)"
     )
