@@ -7,12 +7,13 @@ and may count other evidence against one (NavTopo's far beams; the grid's best f
 one look's verdicts do to the hypotheses is this module's rule, the same for both:
 
 - A look *for* a hypothesis verified it and no evidence of that look counts against it.
-- A look *tells the hypotheses apart* when it is for some of them and not for others. Only such a
-  look moves a hypothesis's count against it: one more for each it is not for, one less (never below
-  zero) for each it is for. Evidence counted against a hypothesis adds one whatever the others did.
-  A look that verifies every hypothesis, or none, is no evidence for one place over another: it
-  moves no count. (With one taken off at every look that verified it, a look-alike told apart at
-  one look in three was never dropped at ``drop_after`` 3: three looks for it undid each against.)
+- A look *tells the hypotheses apart* when it verified at least one of them and is not for all of
+  them. Only such a look moves a count by the verdicts: one more against each it is not for, one
+  less (never below zero) for each it is for. Evidence counted against a hypothesis adds one
+  whatever the others did. So a look that verifies every hypothesis, or none, is no evidence for one
+  place over another: it moves no count but by such evidence. (With one taken off at every look
+  that verified it, a look-alike told apart at one look in three was never dropped at
+  ``drop_after`` 3: three looks for it undid each against.)
 - A hypothesis is dropped when its count against reaches ``drop_after``, or after
   ``drop_unverified`` looks in a row that did not verify it.
 - One hypothesis left is *alone* from the odometer reading at which it was left so, and counts the
@@ -63,7 +64,8 @@ def weigh(
     odometer reading ``odometer`` (m): (the hypotheses kept, in order; those the look was for)."""
     against = against if against is not None else [False] * len(hypotheses)
     looks_for = [ok and not bad for ok, bad in zip(verified, against, strict=True)]
-    telling = any(looks_for) and not all(looks_for)
+    # a hypothesis verified but counted against still tells: the others it did not verify lose ground
+    telling = any(verified) and not all(looks_for)
     for h, ok, found, bad in zip(hypotheses, verified, looks_for, against, strict=True):
         if found:
             h.support += 1

@@ -735,8 +735,8 @@ class Navigator:
             return True
         self._stuck_once = True
         route = self._route
-        # the remembered obstacles are in the current location's frame: a route planned from an
-        # earlier one is not bypassed by them
+        # the remembered obstacles are in the current location's frame, which a route is planned
+        # from (``_drive``): defensive, a route from another location is not bypassed by them
         obstacles = self._recent_obstacles() if route[0] == self._obstacle_vertex else np.zeros((0, 2))
         self._remove_edge(route, path_positions(self.graph, route), 0, "stuck", obstacles)
         self._path_vertex = None

@@ -54,6 +54,14 @@ def test_evidence_against_counts_whatever_the_others_did_and_is_no_look_for():
     assert (a.against, b.against) == (0, 1) and looked_for == [a] and b.unverified == 0
 
 
+def test_a_verified_place_the_evidence_counts_against_still_tells_against_one_never_verified():
+    """NavTopo's far beams contradict a place its matcher verified; a rival the matcher did not verify
+    loses ground too (the look verified somewhere else, not it)."""
+    contradicted, missed = Tally(), Tally()
+    weigh([contradicted, missed], [True, False], [True, False], 0.0, 3)
+    assert (contradicted.against, missed.against) == (1, 1)
+
+
 def test_the_survivor_is_alone_from_the_look_that_left_it_so_and_a_new_rival_ends_it():
     right, alike = Tally(), Tally()
     kept = [right, alike]
