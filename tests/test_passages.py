@@ -60,6 +60,34 @@ def test_a_door_narrower_than_the_robot_is_shut_near_it():
     assert np.abs(verdict.shut[:, 0]).max() < 1.0  # the jambs' returns, not the whole wall
 
 
+def test_in_the_door_already_a_path_off_its_middle_is_moved_though_the_margin_is_not_reached():
+    """A path re-planned at the door's mouth, straight through it 0.1 m off the middle, the door
+    narrower than the robot and the margin: the robot is past the passage's entry (no shutting it
+    from there); the check turns the way toward the middle, never to less room than the path leaves."""
+    check = PassageCheck(PassageConfig(), RADIUS)
+    path = np.array([[0.1, -0.6], [0.4, 2.0]])
+    check.set_path(path, roomy_off_door)
+    assert check.passage is not None and check.passage.entry_arc < 0.1
+    returns = door_returns(0.0, 0.66)  # 0.03 m a side in its middle: less than the margin wherever the path goes
+    before = distance_to_polyline(returns, path).min()
+    robot = path[0] + 0.1 * (path[1] - path[0]) / np.hypot(*(path[1] - path[0]))
+    verdict = check.check(0.0, path, 0.1, returns, robot)
+    assert verdict.shut is None and verdict.path is not None
+    assert distance_to_polyline(returns, verdict.path).min() > before + 0.05
+
+
+def test_a_door_the_robot_fits_through_is_not_shut_for_a_way_that_bends_round_its_jamb_after_it():
+    """The lead after the passage is not moved by the fit: a return beside it (a jamb the way bends
+    round past the door) says nothing against the door."""
+    check = PassageCheck(PassageConfig(), RADIUS)
+    path = np.array([[0.0, -2.0], [0.0, 0.9], [2.0, 1.1]])  # through the door, then hard right
+    check.set_path(path, roomy_off_door)
+    assert check.passage is not None
+    returns = np.vstack([door_returns(0.0, 0.95), [[0.2, 1.15]]])  # a corner 0.23 m from the way past the door
+    verdict = check.check(0.0, path, 1.0, returns, np.array([0.0, -1.0]))
+    assert verdict.shut is None
+
+
 def test_a_path_with_room_to_spare_has_no_passage():
     check = PassageCheck(PassageConfig(), RADIUS)
     check.set_path(straight_path(), lambda xy: np.ones(len(xy), bool))
