@@ -295,8 +295,8 @@ class PoseTracker:
         """This look's evidence on the hypotheses (their ``checks`` by ``_verify``; ``best``: the best
         share of any place) by the ledger's rule (``navkit.hypotheses.weigh``): a hypothesis whose fit
         moved it too far (``_verify``) or falls short of the best place's by more than ``min_margin``
-        is not verified, and that a place fits better counts against it. The dropped ones dropped; those the look was for, their
-        ``map -> odom`` refitted (odometry drifts meanwhile)."""
+        is not verified, and that a place fits better counts against it. The dropped ones dropped;
+        those the look was for, their ``map -> odom`` refitted (odometry drifts meanwhile)."""
         config = self.relocalization
         verified = [check is not None and check[0] >= best - config.min_margin for check in checks]
         before = len(self.hypotheses)
