@@ -120,6 +120,36 @@ def plan_path(
     return None
 
 
+# the most an 8-connected path is longer than the straight line it follows: 1 / cos(22.5 deg)
+GRID_STRETCH = math.sqrt(4.0 - 2.0 * math.sqrt(2.0))
+
+
+def within_length(frame: GridFrame, shape: tuple[int, int], a: ArrayLike, b: ArrayLike, length: float) -> NDArray[np.bool_]:
+    """The cells (``shape``, of ``frame``) a cell path from ``a`` to ``b`` (metric points) can pass
+    when the way it stands for is no longer than ``length`` m: those whose centre p has |p - a| +
+    |p - b| <= ``GRID_STRETCH`` length plus two cells (an ellipse with foci a and b; every point of
+    a way that long lies in the ellipse of ``length``, and the 8-connected shortest path near it
+    is at most ``GRID_STRETCH`` times longer). ``passable & within_length(...)`` bounds a search
+    whose result is refused past ``length`` (a way round through unknown space far longer than the
+    straight line): where there is none so short the search gives up at the ellipse, not after
+    every cell it can reach; where there is one, a shortest path as long as the whole grid's lies inside."""
+    a, b = np.asarray(a, dtype=np.float64)[:2], np.asarray(b, dtype=np.float64)[:2]
+    reach = GRID_STRETCH * length + 2.0 * frame.resolution
+    inside = np.zeros(shape, np.bool_)
+    lo = frame.to_cell(np.minimum(a, b) - reach / 2.0)
+    hi = frame.to_cell(np.maximum(a, b) + reach / 2.0)
+    r0, c0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+    r1, c1 = min(int(hi[0]) + 1, shape[0]), min(int(hi[1]) + 1, shape[1])
+    if r0 >= r1 or c0 >= c1:
+        return inside
+    xs = frame.to_world(np.stack([np.full(c1 - c0, r0), np.arange(c0, c1)], axis=1))[:, 0]
+    ys = frame.to_world(np.stack([np.arange(r0, r1), np.full(r1 - r0, c0)], axis=1))[:, 1]
+    to_a = np.sqrt(np.square(ys - a[1])[:, None] + np.square(xs - a[0])[None, :])
+    to_b = np.sqrt(np.square(ys - b[1])[:, None] + np.square(xs - b[0])[None, :])
+    inside[r0:r1, c0:c1] = to_a + to_b <= reach
+    return inside
+
+
 def waypoints(frame: GridFrame, cells: NDArray, start_xy: NDArray, goal_xy: NDArray) -> NDArray[np.float64]:
     """A cell path as metric points with the exact start and goal at its ends; an end cell more than
     a cell and a half from its exact point stays, as the way into the planned free space."""

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from navkit import grid_search
-from navkit.grid_planning import PlannedPath, plan_path
+from navkit.grid_planning import PlannedPath, plan_path, within_length
 from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 from navkit.scan import CEILING_HEIGHT, FLOOR_HEIGHT, MAX_GAP_DEG, obstacle_points, trace_scan
 
@@ -185,7 +185,11 @@ class ScanGrid:
         if medial is not None:
             squared = grid_search.clearance_squared(self.grid == FREE)
             seen.append(grid_search.passable(squared, self.tight, self.frame.resolution, medial))
-        found = plan_path([*seen, self.masks[1], self.masks[3]], self.frame, np.zeros(2), end, snap_cells=snap_cells)
-        if found is None or (found.level >= len(seen) and found.length > detour * float(np.hypot(*end[:2])) + 1.0):
+        longest = detour * float(np.hypot(*end[:2])) + 1.0
+        # the unseen levels searched only as far as a way that long reaches (the ends may snap)
+        bound = within_length(self.frame, self.grid.shape, np.zeros(2), end, longest + 2 * snap_cells * self.frame.resolution)
+        unseen = [self.masks[1] & bound, self.masks[3] & bound]
+        found = plan_path([*seen, *unseen], self.frame, np.zeros(2), end, snap_cells=snap_cells)
+        if found is None or (found.level >= len(seen) and found.length > longest):
             return None
         return found

@@ -52,7 +52,7 @@ from navkit.types import Command, FailureStage, NavStatus, Observation, Status
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import relaxed_poses
 from navtopo.mapping import GraphMaintainer
-from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrid, UnionGrids, bypasses, path_positions
+from navtopo.planning import GlobalPlanner, LocalPlanner, PlannedPath, UnionGrid, UnionGrids, bypasses
 from navtopo.scan_matching import prepare
 from navtopo.startup import Hypothesis, Localization, Startup
 
@@ -421,7 +421,7 @@ class Navigator:
         route = self.global_planner.path(vertex)
         if route is None:
             return None
-        last = path_positions(self.graph, route)[-1]
+        last = self.graph.path_poses(route)[-1]
         return transform_points(last, self.goal.pose[None])[0]
 
     def _try_goal_vertex(self, obs: Observation, vertex: int, pose: NDArray) -> bool:
@@ -429,7 +429,7 @@ class Navigator:
         route = self.global_planner.path(vertex)
         if route is None:
             return False
-        relative = path_positions(self.graph, route)[-1]  # v_goal in vertex's frame
+        relative = self.graph.path_poses(route)[-1]  # v_goal in vertex's frame
         m = self.maintainer
         query = prepare(grid_from_points(obs.points, m.grid_config), m.grid_config, m.matching)
         located = m.localizer.verify(query, self.goal.vertex, between(relative, pose), m.config.max_neighbour_jump)
@@ -472,10 +472,11 @@ class Navigator:
                 if not tentative:
                     self.status = NavStatus(Status.FAILED, "no_path", *self._no_route(vertex, pose))
                 return False
-            positions = path_positions(self.graph, route)
+            positions = self.graph.path_poses(route)
             goal_point = transform_points(positions[-1], self.goal.pose[None])
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
             union = self.unions.get(vertex, self.unions.window(route, positions))
+            points = union.ahead(points)
             if not tentative and self._shut_ahead(obs, union, pose, route, points):
                 continue  # the edge is gone: the route again, round it
             target, planned = self._local_path(union, pose, vertex, route, points)
@@ -579,7 +580,7 @@ class Navigator:
             return False
         self._shut_since = None
         self.counters["edges_shut_ahead"] += 1
-        self._remove_edge(route, path_positions(self.graph, route), leg, "shut ahead", self._latest_new)
+        self._remove_edge(route, self.graph.path_poses(route), leg, "shut ahead", self._latest_new)
         return True
 
     def _remove_edge(self, route: list[int], positions: NDArray, leg: int, why: str, obstacles: NDArray) -> None:
@@ -738,7 +739,7 @@ class Navigator:
         # the remembered obstacles are in the current location's frame, which a route is planned
         # from (``_drive``): defensive, a route from another location is not bypassed by them
         obstacles = self._recent_obstacles() if route[0] == self._obstacle_vertex else np.zeros((0, 2))
-        self._remove_edge(route, path_positions(self.graph, route), 0, "stuck", obstacles)
+        self._remove_edge(route, self.graph.path_poses(route), 0, "stuck", obstacles)
         self._path_vertex = None
         return False
 

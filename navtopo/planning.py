@@ -38,8 +38,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
 from navkit import grid_search
-from navkit.geometry import chain, compose, inverse, transform_points
-from navkit.grid_planning import PlannedPath, densify, densify_legs, plan_path
+from navkit.geometry import compose, inverse, transform_points
+from navkit.grid_planning import PlannedPath, densify, densify_legs, plan_path, within_length
 from navkit.passages import segment_distances
 from navkit.raster import FREE, OCCUPIED, UNKNOWN, GridFrame, inside
 from navkit.scan_grid import GridConfig
@@ -211,11 +211,6 @@ def bypasses(
     return found
 
 
-def path_positions(graph: TopologicalGraph, path: list[int]) -> NDArray[np.float64]:
-    """(len(path), 3) each vertex's observation point in the frame of ``path[0]``, composed along the edges."""
-    return chain([graph.edge(u, v) for u, v in zip(path[:-1], path[1:], strict=True)])
-
-
 # ---------------------------------------------------------------------------------------------
 # the union grid
 
@@ -332,6 +327,15 @@ class UnionGrid:
         out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
         return out
 
+    def ahead(self, route: NDArray) -> NDArray:
+        """A route's points (K, 2+, the location's frame) up to the first after the first that lies off
+        the grid: the polyline leaves the grid on its way there, and a local plan looks no further
+        (checked whole at every replan, a route of a hundred locations cost a millisecond)."""
+        off = ~inside(self.to_cell(route), self.cells.shape)
+        off[0] = False
+        past = np.flatnonzero(off)
+        return route if not len(past) else route[: int(past[0]) + 1]
+
     def passable_at(self, kind: str, radius: float) -> Callable[[NDArray], NDArray[np.bool_]]:
         """Points (N, 2) of the location's frame -> on ``mask(kind, radius)`` (True off the grid)."""
         mask = self.mask(kind, radius)
@@ -445,7 +449,7 @@ class UnionGrids:
 
     def window(self, route: list[int], positions: NDArray[np.float64]) -> Window:
         """The locations of ``route`` (from the current one) within ``window_m`` along it and
-        ``union_radius`` of the current one, each with its position (``path_positions``), for ``get``."""
+        ``union_radius`` of the current one, each with its position (``TopologicalGraph.path_poses``), for ``get``."""
         reach = self.config.window_m
         if reach <= 0 or len(route) < 3:
             return ()
@@ -492,6 +496,8 @@ class LocalPlanner:
         if self.medial is not None:
             steps.append((self.tight, self.medial))
         self.levels: list[tuple[str, float, float | None]] = [(kind, r, m) for kind in ("known", "unknown") for r, m in steps]
+        # the last new obstacles grown by each radius asked for, with their union grid (``_passable``)
+        self._blocked: tuple[UnionGrid, bytes, dict[float, NDArray[np.bool_]]] | None = None
 
     def target(
         self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None = None
@@ -519,7 +525,7 @@ class LocalPlanner:
         # before the polyline first leaves that space beyond there: a route that comes back near
         # the robot (round a loop) must not pull the target to its far end across a wall or a shut door
         reach = self.wide + self.config.target_clearance
-        passable = _passable(union, "known", reach, blocked_xy=blocked_xy)
+        passable = self._passable(union, "known", reach, blocked_xy=blocked_xy)
         if self.config.target_cut:
             cut = self._farthest_in_sight(union, passable, start, route)
             route, skip = route[cut:], skip + cut
@@ -572,6 +578,23 @@ class LocalPlanner:
             if union.values_at(way, passable, False)[1:].all():
                 return int(k)
         return 0
+
+    def _passable(
+        self, union: UnionGrid, kind: str, radius: float, medial: float | None = None, blocked_xy: NDArray | None = None
+    ) -> NDArray[np.bool_]:
+        """The union grid's cached ``mask(kind, radius, medial)``, with new obstacles (N, 2+) blocked as
+        far as ``radius``. The obstacles' grown cells are kept for the last union grid and obstacles
+        asked for: a replan asks for the same ones at several radii and levels."""
+        if blocked_xy is None or not len(blocked_xy):
+            return union.mask(kind, radius, medial)
+        key = np.ascontiguousarray(np.asarray(blocked_xy, dtype=np.float64)[:, :2]).tobytes()
+        if self._blocked is None or self._blocked[0] is not union or self._blocked[1] != key:
+            self._blocked = (union, key, {})
+        grown = self._blocked[2]
+        if radius not in grown:
+            stamp = _stamp(union, np.asarray(blocked_xy)[:, :2])
+            grown[radius] = cv2.dilate(stamp, _disk(radius, union.frame.resolution)) > 0
+        return union.mask(kind, radius, medial) & ~grown[radius]
 
     def _search(
         self,
@@ -626,16 +649,28 @@ class LocalPlanner:
         # robot in a room no location saw, the pose 0.2 m off, snapped to a corridor a metre away
         # through the wall and drove into it; office02, noisy)
         no_wall = union.cells != OCCUPIED
+        detour = self.config.unknown_detour * float(np.hypot(*(target - start[:2]))) + 1.0
+        reach: NDArray[np.bool_] | None = None
         planned = None
         for level, (kind, radius, medial) in enumerate(self.levels):
             if known_only and kind != "known":
                 break
-            passable = _passable(union, kind, radius, medial, blocked_xy)
+            passable = self._passable(union, kind, radius, medial, blocked_xy)
+            own = blocked_xy is None or not len(blocked_xy)  # the union's cached mask, its parts cached too
+            if kind == "unknown":
+                # only a way no longer than the detour is taken: the search bounded there (a shut door
+                # seen ahead had the ways round through unknown space searched to the grid's edge,
+                # 10-35 ms, then refused); the ends may snap by ``snap`` cells
+                if reach is None:
+                    reach = within_length(
+                        union.frame, passable.shape, ends[0], ends[1], detour + 2 * snap * union.frame.resolution
+                    )
+                passable, own = passable & reach, False
             start_cell = grid_search.nearest_free(passable, end_cells[0], snap, no_wall)
             goal_cell = grid_search.nearest_free(passable, end_cells[1], snap, no_wall)
             if start_cell is None or goal_cell is None:
                 continue
-            parts = union.parts(kind, radius, medial) if blocked_xy is None or not len(blocked_xy) else _parts(passable)
+            parts = union.parts(kind, radius, medial) if own else _parts(passable)
             if parts[start_cell] != parts[goal_cell]:
                 continue
             found = plan_path(
@@ -655,7 +690,7 @@ class LocalPlanner:
             if found is None:
                 continue
             planned = PlannedPath(found.points, level)
-            if kind == "unknown" and planned.length > self.config.unknown_detour * float(np.hypot(*(target - start[:2]))) + 1.0:
+            if kind == "unknown" and planned.length > detour:
                 # far round through cells no location saw: a guess; a tighter level may pass the
                 # door beside the robot (a wide level went round through the walls between rooms,
                 # drawn unknown, and the goal beyond a door 1.9 m away was given up)
@@ -732,17 +767,6 @@ class LocalPlanner:
         xy = transform_points(pose, np.asarray(near[:, :2], dtype=np.float64))
         far = union.clear_of_walls(xy, self.config.new_obstacle_distance, outside=True)
         return xy[far]
-
-
-def _passable(
-    union: UnionGrid, kind: str, radius: float, medial: float | None = None, blocked_xy: NDArray | None = None
-) -> NDArray[np.bool_]:
-    """The union grid's cached ``mask(kind, radius, medial)``, with new obstacles (N, 2+) blocked as
-    far as ``radius``."""
-    if blocked_xy is None or not len(blocked_xy):
-        return union.mask(kind, radius, medial)
-    blocked = cv2.dilate(_stamp(union, np.asarray(blocked_xy)[:, :2]), _disk(radius, union.frame.resolution)) > 0
-    return union.mask(kind, radius, medial) & ~blocked
 
 
 def _parts(passable: NDArray[np.bool_]) -> NDArray[np.integer]:

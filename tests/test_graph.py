@@ -50,6 +50,21 @@ def test_dijkstra_follows_translation_lengths_and_composes_the_true_pose():
     assert graph.shortest_path(0, 4)[0] == [0, 4]
 
 
+def test_a_routes_poses_are_the_true_ones_and_follow_a_changed_edge():
+    """``path_poses``: every vertex of a path in the first one's frame, the truth composed; asked
+    again after an edge is moved (removed and added with another pose), the new pose counts."""
+    graph, poses = chain(5)
+    path = [0, 1, 2, 3]
+    for k, pose in enumerate(graph.path_poses(path)):
+        np.testing.assert_allclose(pose, se2.between(poses[0], poses[k]), atol=1e-9)
+    graph.path_poses(path)[1] += 5.0  # a copy: the kept answer is not the caller's to change
+    np.testing.assert_allclose(graph.path_poses(path)[1], se2.between(poses[0], poses[1]), atol=1e-9)
+    graph.remove_edge(1, 2)
+    graph.add_edge(1, 2, np.array([1.0, 0.0, 0.0]))
+    moved = se2.compose(se2.between(poses[0], poses[1]), [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(graph.path_poses(path)[2], moved, atol=1e-9)
+
+
 def test_a_measured_edge_length_outweighs_its_straight_line_and_survives_a_save(tmp_path):
     """The straight edge 0-4 measured as the way round a wall (40 m): Dijkstra takes the chain
     (12.6 m) instead, the length is kept in the folder, and a changed pose drops it."""

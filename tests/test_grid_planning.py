@@ -153,3 +153,40 @@ def test_the_oracle_passes_a_door_of_little_more_than_its_width_through_the_midd
     points = dense(path, res / 2)
     clearance = world.clearance[tuple(np.floor(points[:, ::-1] / res).astype(int).T)]
     assert clearance.min() >= 0.3 + 0.07, clearance.min()
+
+
+def test_a_search_bounded_to_a_ways_length_finds_what_the_whole_grid_does_within_it():
+    """``within_length``: every cell a way of the length can pass is in, none a way a twelfth
+    longer could not reach; and on a cluttered grid, searching only the cells it keeps finds a
+    shortest 8-connected path as long as the whole grid's whenever that is within the bound, and
+    otherwise none or one no shorter."""
+    from navkit.grid_planning import GRID_STRETCH, within_length
+
+    frame = GridFrame(np.zeros(2), 0.1)
+    a, b = np.array([1.0, 1.0]), np.array([5.0, 2.0])
+    kept = within_length(frame, (60, 80), a, b, 6.0)
+    centres = frame.to_world(np.argwhere(np.ones((60, 80), bool))).reshape(60, 80, 2)
+    span = np.hypot(*(centres - a).transpose(2, 0, 1)) + np.hypot(*(centres - b).transpose(2, 0, 1))
+    assert kept[span <= 6.0].all() and not kept[span > GRID_STRETCH * 6.0 + 0.2].any()
+
+    rng = np.random.default_rng(7)
+    free = np.ones((90, 90), bool)
+    for r, c in rng.integers(0, 90, (70, 2)):
+        free[r : r + rng.integers(2, 12), c : c + rng.integers(2, 4)] = False  # wall stubs
+    cells = np.argwhere(free)
+    compared = 0
+    for _ in range(40):
+        start, goal = (tuple(int(v) for v in cells[k]) for k in rng.integers(0, len(cells), 2))
+        ends = frame.to_world(np.array([start, goal]))
+        bound = 1.3 * float(np.hypot(*(ends[1] - ends[0]))) + 0.5
+        found = grid_search.astar(free, start, goal)
+        if found is None:
+            continue
+        whole = grid_search.path_length(found, frame.resolution)
+        bounded = grid_search.astar(free & within_length(frame, free.shape, ends[0], ends[1], bound), start, goal)
+        if whole <= bound:
+            assert bounded is not None and grid_search.path_length(bounded, frame.resolution) == pytest.approx(whole, abs=1e-9)
+            compared += 1
+        elif bounded is not None:
+            assert grid_search.path_length(bounded, frame.resolution) >= whole - 1e-9
+    assert compared >= 10

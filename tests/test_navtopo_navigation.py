@@ -15,7 +15,7 @@ from navkit.scan_grid import GridConfig, grid_frame, grid_from_points
 from navtopo.graph import TopologicalGraph
 from navtopo.local_grid import CroppedGrid
 from navtopo.navigation import goal_in_graph
-from navtopo.planning import GlobalPlanner, build_union_grid, path_positions
+from navtopo.planning import GlobalPlanner, build_union_grid
 from runners.mapping import MappingSystem, run_mapping
 from runners.navigation import TrialJob, run_trial_job
 from runners.results import RunDir
@@ -54,7 +54,7 @@ def test_dijkstra_follows_the_shortest_way_and_a_removed_edge_sends_it_round_the
     planner.set_goal(4)
     assert planner.path(0) == [0, 1, 4]  # a new trial: every edge is back
     # the vertices' positions along the path, composed in the first one's frame
-    positions = path_positions(graph, [0, 1, 4])
+    positions = graph.path_poses([0, 1, 4])
     assert np.allclose(positions[:, :2], [[0, 0], [4, 0], [14, 0]], atol=1e-9)
 
 
@@ -161,7 +161,7 @@ def test_a_window_joins_the_routes_locations_ahead_to_the_union_grid():
     """Five locations 5 m apart along a corridor, each grid knowing 3 m round it: the current
     location's union grid knows its neighbour's cells (to 8 m) and, with a 16 m window along the
     route, the next two locations' too (to 18 m), each placed where it lies; none past the window."""
-    from navtopo.planning import PlanningConfig, UnionGrids, path_positions
+    from navtopo.planning import PlanningConfig, UnionGrids
 
     frame = grid_frame(GRID)
     centres = frame.centres(np.ones((GRID.size, GRID.size), bool))
@@ -170,7 +170,7 @@ def test_a_window_joins_the_routes_locations_ahead_to_the_union_grid():
     poses = [[5.0 * i, 0.0, 0.3 * i] for i in range(5)]
     graph = _graph(poses, [(i, i + 1) for i in range(4)], [grid] * 5)
     route = [0, 1, 2, 3, 4]
-    positions = path_positions(graph, route)
+    positions = graph.path_poses(route)
     probes = np.array([[7.5, 0.0], [12.5, 0.0], [17.5, 0.0], [22.5, 0.0]])  # beyond each location's 3 m
     for window, known in ((0.0, [True, False, False, False]), (16.0, [True, True, True, False])):
         unions = UnionGrids(graph, GRID, PlanningConfig(window_m=window))
@@ -405,6 +405,8 @@ def test_the_lookahead_target_stops_where_the_route_first_leaves_the_known_free_
     route = np.array([[8.0, 0.0], [8.0, 4.0], [0.0, 4.0]])
     target = planner.target(union, np.zeros(3), route)
     assert abs(target[1]) < 0.5 and 3.0 < target[0] < 6.0  # the lower arm's far end, not the upper arm
+    # the route as far as its first point off the union grid (cropped to x -2..6): the same target
+    assert len(union.ahead(route)) == 2 and np.allclose(planner.target(union, np.zeros(3), union.ahead(route)), target)
     # a door shut across the lower arm at x = 2.5 (the grid still shows it open): the target stops before it
     door = np.array([[2.5, y] for y in np.arange(-1.0, 1.0, 0.05)])
     before = planner.target(union, np.zeros(3), route, door)
