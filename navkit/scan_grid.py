@@ -154,6 +154,7 @@ class ScanGrid:
     frame: GridFrame
     masks: list[NDArray[np.bool_]]
     tight: float  # the second radius of ``masks``: the robot's radius and half a cell
+    free_squared: NDArray[np.int32]  # the scan's free space's ``grid_search.clearance_squared``
 
     @classmethod
     def of(cls, points: NDArray, grid_config: GridConfig, wide: float, tight: float) -> ScanGrid:
@@ -163,12 +164,10 @@ class ScanGrid:
         # moves have always been planned: not grid_frame's floor(x / res) + half, which can differ by
         # a cell at a cell's edge
         frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        masks = [
-            grid_search.inflate_free(space, radius, frame.resolution)
-            for radius in (wide, tight)
-            for space in (grid == FREE, grid != OCCUPIED)
-        ]
-        return cls(grid, frame, masks, tight)
+        # one exact transform a kind of space serves both radii (``inflate_free`` made one a mask)
+        squared = [grid_search.clearance_squared(space) for space in (grid == FREE, grid != OCCUPIED)]
+        masks = [grid_search.clear_of(clear, radius, frame.resolution) for radius in (wide, tight) for clear in squared]
+        return cls(grid, frame, masks, tight, squared[0])
 
     def plan(self, end: NDArray, snap_cells: int = 5) -> PlannedPath | None:
         """A path from the robot (the origin) to ``end`` (2,, robot frame) on the first level that has one."""
@@ -183,8 +182,7 @@ class ScanGrid:
         longer than ``detour`` times the straight line plus 1 m."""
         seen = [self.masks[0], self.masks[2]]  # masks: (wide, tight) x (free, not occupied)
         if medial is not None:
-            squared = grid_search.clearance_squared(self.grid == FREE)
-            seen.append(grid_search.passable(squared, self.tight, self.frame.resolution, medial))
+            seen.append(grid_search.passable(self.free_squared, self.tight, self.frame.resolution, medial))
         longest = detour * float(np.hypot(*end[:2])) + 1.0
         # the unseen levels searched only as far as a way that long reaches (the ends may snap)
         bound = within_length(self.frame, self.grid.shape, np.zeros(2), end, longest + 2 * snap_cells * self.frame.resolution)

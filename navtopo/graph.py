@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from navkit.errors import BenchError
 from navkit.files import atomic_write
-from navkit.geometry import chain, inverse
+from navkit.geometry import chain, compose, inverse
 from navtopo.local_grid import CroppedGrid, decode_png, encode_png
 
 FORMAT = "navtopo-graph/1"
@@ -193,7 +193,12 @@ class TopologicalGraph:
         asks for its route's at every replan (a route of a hundred edges cost a third of a
         millisecond, a sixth of a replan)."""
         key = tuple(int(v) for v in path)
-        if self._last_path is None or self._last_path[:2] != (key, self._changes):
+        last = self._last_path
+        if last is not None and last[1] == self._changes and key != last[0] and key == last[0][len(last[0]) - len(key) :]:
+            # the rest of the last path (the route from a vertex along it): its poses from there
+            start = len(last[0]) - len(key)
+            self._last_path = (key, self._changes, compose(inverse(last[2][start]), last[2][start:]))
+        elif last is None or last[:2] != (key, self._changes):
             steps = [self._adjacency[u][v] for u, v in zip(key[:-1], key[1:], strict=True)]
             self._last_path = (key, self._changes, chain(steps))
         return self._last_path[2].copy()

@@ -24,6 +24,7 @@ Frames: a union grid is centred on ``v_cur``'s observation point and axis-aligne
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections import OrderedDict
@@ -797,6 +798,7 @@ def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
     return stamp
 
 
+@functools.lru_cache(maxsize=16)
 def _disk(radius: float, resolution: float) -> NDArray[np.uint8]:
     r = int(np.ceil(radius / resolution))
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
