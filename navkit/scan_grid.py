@@ -26,6 +26,7 @@ reference implementation, "no return" never means "free".
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -34,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from navkit import grid_search
-from navkit.grid_planning import PlannedPath, plan_path, within_length
+from navkit.grid_planning import PlannedPath, Search, plan_path, theta_star_search, within_length
 from navkit.raster import FREE, OCCUPIED, GridFrame, inside
 from navkit.scan import CEILING_HEIGHT, FLOOR_HEIGHT, MAX_GAP_DEG, obstacle_points, trace_scan
 
@@ -148,13 +149,14 @@ def grid_from_points(points: ArrayLike, config: GridConfig | None = None) -> Gri
 class ScanGrid:
     """One scan's grid (``local_grid.grid_from_points``, robot frame) and the local planner's levels
     on it: with the margin, then the robot's radius alone (a narrow door); in the scan's free space,
-    then between the walls it saw (a door seen at a slant leaves little free space)."""
+    then between the walls it saw (a door seen at a slant leaves little free space). Each kind of
+    space's exact transform is made when a level first needs it (a plan that the scan's free space
+    serves never transforms the rest)."""
 
     grid: NDArray[np.uint8]
     frame: GridFrame
-    masks: list[NDArray[np.bool_]]
-    tight: float  # the second radius of ``masks``: the robot's radius and half a cell
-    free_squared: NDArray[np.int32]  # the scan's free space's ``grid_search.clearance_squared``
+    wide: float  # the first radius of the levels: the robot's with a margin
+    tight: float  # the second: the robot's radius and half a cell
 
     @classmethod
     def of(cls, points: NDArray, grid_config: GridConfig, wide: float, tight: float) -> ScanGrid:
@@ -164,30 +166,57 @@ class ScanGrid:
         # moves have always been planned: not grid_frame's floor(x / res) + half, which can differ by
         # a cell at a cell's edge
         frame = GridFrame(np.array([-grid_config.radius, -grid_config.radius]), grid_config.resolution)
-        # one exact transform a kind of space serves both radii (``inflate_free`` made one a mask)
-        squared = [grid_search.clearance_squared(space) for space in (grid == FREE, grid != OCCUPIED)]
-        masks = [grid_search.clear_of(clear, radius, frame.resolution) for radius in (wide, tight) for clear in squared]
-        return cls(grid, frame, masks, tight, squared[0])
+        return cls(grid, frame, wide, tight)
+
+    @functools.cached_property
+    def free_squared(self) -> NDArray[np.int32]:
+        """The scan's free space's ``grid_search.clearance_squared``."""
+        return grid_search.clearance_squared(self.grid == FREE)
+
+    @functools.cached_property
+    def open_squared(self) -> NDArray[np.int32]:
+        """``clearance_squared`` of the cells the scan did not see occupied."""
+        return grid_search.clearance_squared(self.grid != OCCUPIED)
+
+    def mask(self, index: int) -> NDArray[np.bool_]:
+        """Level ``index`` of (wide, tight) x (free, not occupied): the cells the robot's centre may take."""
+        radius = self.wide if index < 2 else self.tight
+        return grid_search.clear_of(self.open_squared if index % 2 else self.free_squared, radius, self.frame.resolution)
+
+    @property
+    def masks(self) -> list[NDArray[np.bool_]]:
+        return [self.mask(index) for index in range(4)]
 
     def plan(self, end: NDArray, snap_cells: int = 5) -> PlannedPath | None:
         """A path from the robot (the origin) to ``end`` (2,, robot frame) on the first level that has one."""
-        return plan_path(self.masks, self.frame, np.zeros(2), end, snap_cells=snap_cells)
+        return plan_path(self.mask, self.frame, np.zeros(2), end, snap_cells=snap_cells, levels=4)
 
     def plan_seen_first(
-        self, end: NDArray, detour: float, medial: float | None = None, snap_cells: int = 5
+        self,
+        end: NDArray,
+        detour: float,
+        medial: float | None = None,
+        snap_cells: int = 5,
+        search: Search = theta_star_search,
     ) -> PlannedPath | None:
         """As ``plan``, the scan's free space tried first at both radii and, with ``medial``, along
         a passage's middle at that radius (``LocalPlanner``'s levels: a door the scan shows open
         before a way round through space it did not see); a way through unseen space refused if
-        longer than ``detour`` times the straight line plus 1 m."""
-        seen = [self.masks[0], self.masks[2]]  # masks: (wide, tight) x (free, not occupied)
-        if medial is not None:
-            seen.append(grid_search.passable(self.free_squared, self.tight, self.frame.resolution, medial))
+        longer than ``detour`` times the straight line plus 1 m. ``search``: the cell search
+        (``plan_path``'s; a local planner passes its own)."""
         longest = detour * float(np.hypot(*end[:2])) + 1.0
-        # the unseen levels searched only as far as a way that long reaches (the ends may snap)
-        bound = within_length(self.frame, self.grid.shape, np.zeros(2), end, longest + 2 * snap_cells * self.frame.resolution)
-        unseen = [self.masks[1] & bound, self.masks[3] & bound]
-        found = plan_path([*seen, *unseen], self.frame, np.zeros(2), end, snap_cells=snap_cells)
-        if found is None or (found.level >= len(seen) and found.length > longest):
+        seen = 3 if medial is not None else 2
+
+        def level(index: int) -> NDArray[np.bool_]:
+            if index < 2:
+                return self.mask(2 * index)  # the free space at each radius
+            if index < seen:
+                return grid_search.passable(self.free_squared, self.tight, self.frame.resolution, medial)
+            # unseen space, searched only as far as a way that long reaches (the ends may snap)
+            bound = within_length(self.frame, self.grid.shape, np.zeros(2), end, longest + 2 * snap_cells * self.frame.resolution)
+            return self.mask(2 * (index - seen) + 1) & bound
+
+        found = plan_path(level, self.frame, np.zeros(2), end, snap_cells=snap_cells, levels=seen + 2, search=search)
+        if found is None or (found.level >= seen and found.length > longest):
             return None
         return found

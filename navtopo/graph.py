@@ -194,14 +194,16 @@ class TopologicalGraph:
         millisecond, a sixth of a replan)."""
         key = tuple(int(v) for v in path)
         last = self._last_path
-        if last is not None and last[1] == self._changes and key != last[0] and key == last[0][len(last[0]) - len(key) :]:
+        if last is not None and last[:2] == (key, self._changes):
+            poses = last[2]
+        elif last is not None and last[1] == self._changes and key == last[0][len(last[0]) - len(key) :]:
             # the rest of the last path (the route from a vertex along it): its poses from there
             start = len(last[0]) - len(key)
-            self._last_path = (key, self._changes, compose(inverse(last[2][start]), last[2][start:]))
-        elif last is None or last[:2] != (key, self._changes):
-            steps = [self._adjacency[u][v] for u, v in zip(key[:-1], key[1:], strict=True)]
-            self._last_path = (key, self._changes, chain(steps))
-        return self._last_path[2].copy()
+            poses = compose(inverse(last[2][start]), last[2][start:])
+        else:
+            poses = chain([self._adjacency[u][v] for u, v in zip(key[:-1], key[1:], strict=True)])
+        self._last_path = (key, self._changes, poses)
+        return poses.copy()
 
     def path_pose(self, path: list[int]) -> NDArray[np.float64]:
         """The last vertex of ``path`` in the first one's frame (``path_poses``' last row)."""

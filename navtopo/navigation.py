@@ -626,9 +626,8 @@ class Navigator:
         """The local path to ``goal`` (2,, v_cur's frame) in the scan's grid (``ScanGrid.
         plan_seen_first``), in v_cur's frame."""
         scan = ScanGrid.of(obs.points, self.maintainer.grid_config, self.local.wide, self.local.tight)
-        found = scan.plan_seen_first(
-            transform_points(inverse(pose), goal[None])[0], self.local.config.unknown_detour, self.local.medial
-        )
+        end = transform_points(inverse(pose), goal[None])[0]
+        found = scan.plan_seen_first(end, self.local.config.unknown_detour, self.local.medial, search=self.local.search)
         if found is None:
             return None
         self.counters["scan_plans"] += 1

@@ -597,7 +597,7 @@ class LocalPlanner:
             grown[radius] = cv2.dilate(stamp, _disk(radius, union.frame.resolution)) > 0
         return union.mask(kind, radius, medial) & ~grown[radius]
 
-    def _search(
+    def search(
         self,
         level: int,
         passable: NDArray[np.bool_],
@@ -685,7 +685,7 @@ class LocalPlanner:
                 # a narrow passage's path is fitted to the scan as found (``narrow_part``)
                 prefer_m=0.0 if medial is not None or not self.config.keep_clear else self.wide + self.config.keep_clear,
                 hold_m=self.tight,
-                search=self._search,
+                search=self.search,
                 snap_through=no_wall,
             )
             if found is None:
