@@ -189,9 +189,9 @@ class TopologicalGraph:
 
     def path_poses(self, path: list[int]) -> NDArray[np.float64]:
         """(len(path), 3) each vertex of ``path``'s observation point in the first one's frame,
-        composed along the edges. The last path's answer is kept until an edge changes: navigation
-        asks for its route's at every replan (a route of a hundred edges cost a third of a
-        millisecond, a sixth of a replan)."""
+        composed along the edges. The last path's answer is kept until an edge changes, and a path
+        that is the last one's rest (the route from a vertex further along it) is answered from it:
+        navigation asks for its route's at every replan and every step toward the goal."""
         key = tuple(int(v) for v in path)
         last = self._last_path
         if last is not None and last[:2] == (key, self._changes):

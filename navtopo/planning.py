@@ -330,8 +330,8 @@ class UnionGrid:
 
     def ahead(self, route: NDArray) -> NDArray:
         """A route's points (K, 2+, the location's frame) up to the first after the first that lies off
-        the grid: the polyline leaves the grid on its way there, and a local plan looks no further
-        (checked whole at every replan, a route of a hundred locations cost a millisecond)."""
+        the grid: the polyline leaves the grid on its way there, and no local check (``aim``,
+        ``blocked_leg``) looks further, so the route's far part is not densified at every replan."""
         off = ~inside(self.to_cell(route), self.cells.shape)
         off[0] = False
         past = np.flatnonzero(off)
