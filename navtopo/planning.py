@@ -745,8 +745,15 @@ class LocalPlanner:
         if not len(blocked_xy) or not len(route):
             return None
         samples, legs = densify_legs(np.vstack([start[None, :2], route]), self.config.target_step)
+        # only obstacles within the robot's reach of the samples' box can be near one (most of a
+        # scan's new obstacles lie off the route: the tree is built on the rest, or on none)
+        blocked = np.asarray(blocked_xy, dtype=np.float64)[:, :2]
+        box = (blocked >= samples.min(axis=0) - self.tight) & (blocked <= samples.max(axis=0) + self.tight)
+        blocked = blocked[box.all(axis=1)]
+        if not len(blocked):
+            return None
         mapped = union.values_at(samples, union.mask("known", self.tight), False)
-        near = cKDTree(np.asarray(blocked_xy, dtype=np.float64)[:, :2]).query(samples, distance_upper_bound=self.tight)[0]
+        near = cKDTree(blocked).query(samples, distance_upper_bound=self.tight)[0]
         now = mapped & ~np.isfinite(near)  # no obstacle within the robot's reach of the point
         away = np.hypot(*(samples - start[:2]).T) >= 1.0  # at the robot: the path's own check (``path_ahead_blocked``)
         shut = np.flatnonzero(mapped & ~now & away)
