@@ -476,7 +476,6 @@ class Navigator:
             goal_point = transform_points(positions[-1], self.goal.pose[None])
             points = np.vstack([positions[1:, :2], goal_point]) if len(route) > 1 else goal_point
             union = self.unions.get(vertex, self.unions.window(route, positions))
-            points = union.ahead(points)
             if not tentative and self._shut_ahead(obs, union, pose, route, points):
                 continue  # the edge is gone: the route again, round it
             target, planned = self._local_path(union, pose, vertex, route, points)

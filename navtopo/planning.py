@@ -328,15 +328,6 @@ class UnionGrid:
         out[on_grid] = array[cells[on_grid, 0], cells[on_grid, 1]]
         return out
 
-    def ahead(self, route: NDArray) -> NDArray:
-        """A route's points (K, 2+, the location's frame) up to the first after the first that lies off
-        the grid: the polyline leaves the grid on its way there, and no local check (``aim``,
-        ``blocked_leg``) looks further, so the route's far part is not densified at every replan."""
-        off = ~inside(self.to_cell(route), self.cells.shape)
-        off[0] = False
-        past = np.flatnonzero(off)
-        return route if not len(past) else route[: int(past[0]) + 1]
-
     def passable_at(self, kind: str, radius: float) -> Callable[[NDArray], NDArray[np.bool_]]:
         """Points (N, 2) of the location's frame -> on ``mask(kind, radius)`` (True off the grid)."""
         mask = self.mask(kind, radius)

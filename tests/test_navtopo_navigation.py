@@ -405,8 +405,6 @@ def test_the_lookahead_target_stops_where_the_route_first_leaves_the_known_free_
     route = np.array([[8.0, 0.0], [8.0, 4.0], [0.0, 4.0]])
     target = planner.target(union, np.zeros(3), route)
     assert abs(target[1]) < 0.5 and 3.0 < target[0] < 6.0  # the lower arm's far end, not the upper arm
-    # the route as far as its first point off the union grid (cropped to x -2..6): the same target
-    assert len(union.ahead(route)) == 2 and np.allclose(planner.target(union, np.zeros(3), union.ahead(route)), target)
     # a door shut across the lower arm at x = 2.5 (the grid still shows it open): the target stops before it
     door = np.array([[2.5, y] for y in np.arange(-1.0, 1.0, 0.05)])
     before = planner.target(union, np.zeros(3), route, door)
