@@ -133,7 +133,7 @@ class Explorer:
         between them for 80 s."""
         scan = ScanGrid.of(obs.points, self.grid_config, *self.radii)
         grid, frame = scan.grid, scan.frame
-        passable = scan.masks[-1] & (grid == FREE)
+        passable = scan.mask(3) & (grid == FREE)  # the tight radius, not occupied
         angles = np.radians(np.arange(0.0, 360.0, 15.0))
         reach = self.explore_distance
         directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)

@@ -183,10 +183,6 @@ class ScanGrid:
         radius = self.wide if index < 2 else self.tight
         return grid_search.clear_of(self.open_squared if index % 2 else self.free_squared, radius, self.frame.resolution)
 
-    @property
-    def masks(self) -> list[NDArray[np.bool_]]:
-        return [self.mask(index) for index in range(4)]
-
     def plan(self, end: NDArray, snap_cells: int = 5) -> PlannedPath | None:
         """A path from the robot (the origin) to ``end`` (2,, robot frame) on the first level that has one."""
         return plan_path(self.mask, self.frame, np.zeros(2), end, snap_cells=snap_cells, levels=4)

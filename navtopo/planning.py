@@ -800,4 +800,6 @@ def _stamp(union: UnionGrid, xy: NDArray) -> NDArray[np.uint8]:
 def _disk(radius: float, resolution: float) -> NDArray[np.uint8]:
     r = int(np.ceil(radius / resolution))
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-    return ((xx * xx + yy * yy) * resolution**2 <= radius * radius).astype(np.uint8)
+    disk = ((xx * xx + yy * yy) * resolution**2 <= radius * radius).astype(np.uint8)
+    disk.flags.writeable = False  # kept (``lru_cache``): one array for every caller
+    return disk
