@@ -42,6 +42,7 @@ exists. ``benchmarks/bench_grid_search.py`` measures plan times on 1000^2 and 30
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -136,6 +137,41 @@ def _far_from_kernel(blocked, cells, threshold, outside):
                 break
         out[i] = clear
     return out
+
+
+def without_disks(passable: NDArray[np.bool_], cells: ArrayLike, radius_m: float, resolution: float) -> NDArray[np.bool_]:
+    """A copy of ``passable`` (H, W) bool without the cells whose centre lies within ``radius_m`` of
+    the centre of one of ``cells`` (N, 2) [row, col] (a cell off the grid too: its disk may reach
+    onto it): new obstacles grown by a radius. Within: (rows² + cols²) resolution² <= radius_m², in
+    floats (3 cells at 0.1 m is not within 0.3 m). The same cells as dilating a stamp of them by a disk
+    (OpenCV), written disk by disk (compiled): a scan's hundred-odd obstacles cost a few
+    microseconds, where a dilation costs its box of the grid."""
+    offsets = _disk_offsets(radius_m, resolution)
+    out = np.array(passable, dtype=np.bool_, copy=True)
+    _clear_disks(out, np.ascontiguousarray(np.asarray(cells, dtype=np.int64).reshape(-1, 2)), offsets)
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _disk_offsets(radius_m: float, resolution: float) -> NDArray[np.int64]:
+    """(K, 2) [row, col] offsets of the cells whose centre lies within ``radius_m`` of a cell's."""
+    reach = int(np.ceil(radius_m / resolution))
+    rows, cols = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    inside = (rows * rows + cols * cols) * resolution**2 <= radius_m * radius_m
+    offsets = np.stack([rows[inside], cols[inside]], axis=1).astype(np.int64)
+    offsets.flags.writeable = False  # kept (``lru_cache``): one array for every caller
+    return offsets
+
+
+@njit(cache=True, nogil=True)
+def _clear_disks(out, cells, offsets):
+    height, width = out.shape
+    for i in range(cells.shape[0]):
+        for k in range(offsets.shape[0]):
+            r = cells[i, 0] + offsets[k, 0]
+            c = cells[i, 1] + offsets[k, 1]
+            if 0 <= r < height and 0 <= c < width:
+                out[r, c] = False
 
 
 def clear_of(squared: NDArray, radius_m: float, resolution: float) -> NDArray[np.bool_]:

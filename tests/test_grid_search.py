@@ -92,6 +92,23 @@ def test_inflate_equals_scipy_edt_with_blocked_outside():
     assert open_grid[2:-2, 2:-2].all() and not open_grid[:2].any() and not open_grid[:, -2:].any()
 
 
+def test_without_disks_removes_exactly_the_cells_within_the_radius_of_each_obstacle_cell():
+    rng = np.random.default_rng(7)
+    passable = rng.random((60, 80)) > 0.2
+    # obstacles on the grid, one just off each side (its disk reaches onto the grid), and repeats
+    cells = np.vstack([rng.integers(0, 60, (40, 1)), [[-2], [30], [61], [30]]])
+    cells = np.hstack([cells, np.vstack([rng.integers(0, 80, (40, 1)), [[40], [-1], [40], [81]]])])
+    cells = np.vstack([cells, cells[:5]])
+    rows, cols = np.mgrid[0:60, 0:80]
+    for radius in (0.07, 0.12, 0.26, 0.33):  # none a whole number of cells: there the float test decides
+        # the truth: each cell's distance to the nearest obstacle cell's centre, from a k-d tree
+        nearest = cKDTree(cells * RES).query(np.stack([rows.ravel(), cols.ravel()], axis=1) * RES)[0].reshape(60, 80)
+        out = gs.without_disks(passable, cells, radius, RES)
+        assert np.array_equal(out, passable & (nearest > radius + 1e-9))
+    assert passable.sum() > out.sum()  # a copy: the mask given is untouched
+    assert np.array_equal(gs.without_disks(passable, np.zeros((0, 2), int), 0.3, RES), passable)
+
+
 def test_the_squared_distance_transform_is_scipys_exact_one_in_integers():
     rng = np.random.default_rng(7)
     for _ in range(200):
