@@ -123,7 +123,7 @@ class NavTopo:
     @staticmethod
     def warm_up() -> None:
         """Load the compiled kernels (grids, matching, planning) before anything is timed."""
-        from navkit.grid_search import SEARCHES, far_from, inflate_free, nearest_free
+        from navkit.grid_search import SEARCHES, far_from, inflate_free, nearest_free, without_disks
         from navkit.scan_grid import grid_from_points
         from navtopo.scan_matching import match
 
@@ -136,6 +136,7 @@ class NavTopo:
         for search in SEARCHES.values():  # whichever ``planning.search`` a run's config names
             search(free, (0, 0), (7, 7))
         far_from(~free, np.array([[1, 1]]), 0.2, 0.1, True)
+        without_disks(free, np.array([[1, 1]]), 0.2, 0.1)
 
     @property
     def status(self) -> NavStatus:
