@@ -573,24 +573,29 @@ def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, co
         return np.diag([1.0, 1.0, 1.0])
 
 
-def refine(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
+def refine(
+    reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig, icp: bool = True
+) -> NDArray[np.float64]:
     """The query's pose in the reference, refined from ``pose``: ICP of the query's occupied
-    cells onto the reference's, then the distance-field fit (see the module docstring)."""
+    cells onto the reference's, then the distance-field fit (see the module docstring);
+    ``icp`` False: the distance-field fit alone (it stays at the walls nearest ``pose``)."""
     pose = np.asarray(pose, dtype=np.float64)
     if len(query.occupied_xy) < 3 or len(reference.occupied_xy) < 3:
         return pose.copy()
-    refined = _icp(
-        query.occupied_xy,
-        pose,
-        reference.occupied_xy,
-        reference.nearest,
-        reference.row0,
-        reference.col0,
-        reference.half,
-        reference.resolution,
-        np.asarray(config.icp_distances, dtype=np.float64),
-        config.icp_iterations,
-    )
+    refined = pose.copy()
+    if icp:
+        refined = _icp(
+            query.occupied_xy,
+            pose,
+            reference.occupied_xy,
+            reference.nearest,
+            reference.row0,
+            reference.col0,
+            reference.half,
+            reference.resolution,
+            np.asarray(config.icp_distances, dtype=np.float64),
+            config.icp_iterations,
+        )
     if config.field_iterations:
         refined = _field_fit(query.occupied_xy, refined, *_field(reference), config.field_cutoff, config.field_iterations)
     refined[2] = wrap_angle(refined[2])
@@ -697,8 +702,7 @@ def match(
             # step in a rack hall, 0.03 m off by odometry, moved 0.46 m off: agreement 0.98 at the
             # guess, 0.91 after). The distance-field fit alone stays at the guess's walls; the
             # better of the two by the ranking below is kept.
-            near = _field_fit(query.occupied_xy, guess, *_field(reference), config.field_cutoff, config.field_iterations)
-            near[2] = wrap_angle(near[2])
+            near = refine(reference, query, guess, config, icp=False)
             near_scored = verdict(reference, query, near, config)
             if _rank(near_scored) > _rank(scored):
                 pose, scored = near, near_scored
