@@ -19,6 +19,11 @@ otherwise drive forward. Additions, each small and documented:
   a 0.15 m corner disc and passed by projection beside it, then arced round, swinging 0.06 m
   off the path onto door jambs that the planner passes with a few centimetres to spare
   (BENCHMARKS.md, "Design choices: the follower's corner rules"); with these, 0.02-0.03 m;
+* over a narrow passage of the path (a door at the robot's width and a little more; the system
+  marks it, ``slow_between``), the speed is capped at ``passage_speed``: a heading a few degrees
+  off at full speed drifts the robot sideways by centimetres before the angular correction
+  catches it, where such a door leaves ten a side (BENCHMARKS.md, "Design choices: slow
+  through a door");
 * while driving, a proportional angular correction, and a linear speed that falls smoothly to
   zero as the heading error reaches the turn-in-place threshold (no jump between the modes)
   and slows over the last ``slowdown_distance`` metres of the path.
@@ -74,6 +79,11 @@ class FollowerConfig(BaseModel):
         default=0.5, ge=0, description="distance before a corner over which the speed falls to min_linear, m (0: none)"
     )
     progress_window: float = Field(default=1.5, gt=0, description="how far ahead of the progress the robot is projected, m")
+    passage_speed: float = Field(
+        default=0.3,
+        ge=0,
+        description="speed limit over a narrow passage of the path (``slow_between``), m/s (0: none)",
+    )
 
     def for_robot(self, context: Any) -> FollowerConfig:
         """This config with what the run fixes filled in, in one place for every system: the
@@ -132,6 +142,7 @@ class PathFollower:
         self._progress = 0.0
         self._next_corner = 0
         self._reached = False
+        self._slow: tuple[float, float] | None = None  # arc lengths of a narrow passage, driven at passage_speed
         # a turn in place under way goes on toward the new path until ``turn_in_place_until``: a plan
         # replaced mid-turn left the robot 14 degrees off the new way, under the threshold, and it
         # drove off so into a door's jamb beside it (a generated slam-ring, noisy)
@@ -145,6 +156,12 @@ class PathFollower:
         self._next_corner = 0  # index into _corner_arc of the first corner not yet passed
         self._reached = False
         self._turning = False  # turning in place (until the heading error is below turn_in_place_until)
+        self._slow = None
+
+    def slow_between(self, start: float, end: float) -> None:
+        """Drive the path from arc length ``start`` to ``end`` (a narrow passage) at ``passage_speed``
+        at most; until the next ``set_path``."""
+        self._slow = (float(start), float(end))
 
     @property
     def has_path(self) -> bool:
@@ -242,6 +259,8 @@ class PathFollower:
             to_corner = math.hypot(*(self._point_at(self._corner_arc[self._next_corner]) - position))
             factor = min(factor, to_corner / cfg.corner_slowdown)
         speed = max(cfg.max_linear * factor, min(cfg.min_linear, cfg.max_linear))
+        if cfg.passage_speed > 0.0 and self._slow is not None and self._slow[0] <= self._progress <= self._slow[1]:
+            speed = min(speed, cfg.passage_speed)
         return Command(speed * alignment, angular)
 
     def advance(self, position: ArrayLike) -> float:

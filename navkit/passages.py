@@ -4,10 +4,11 @@ when the robot does not fit there (both systems: the map's cells place a jamb wi
 where it is, and the pose on the map is off by a few centimetres, where such a door leaves ten a
 side).
 
-``PassageCheck`` is the check between plans: a system gives it the narrow part of each new path
-(``narrow_part``) and, at each tick, the path's progress and the scan's returns near the passage;
-it answers follow on, follow the moved path, or shut (the returns to mark as obstacles). Points
-and paths are (N, 2) in the frame the system plans in.
+``PassageCheck`` is the check between plans: a system hands it each new path with the follower
+(``follow``: the narrow part found by ``narrow_part``, driven at the follower's ``passage_speed``)
+and, at each tick, the pose and a way to the scan's returns near the passage (``step``); it answers
+follow on, follow the moved path (handed to the follower already), or shut (the returns to mark as
+obstacles). Points and paths are (N, 2) in the frame the system plans in.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from navkit.follower import PathFollower
 from navkit.geometry import arc_lengths, distance_to_polyline, point_at_arc
 from navkit.grid_planning import densify
 
@@ -83,6 +85,35 @@ class PassageCheck:
     def set_path(self, path: NDArray, roomy: Callable[[NDArray], NDArray[np.bool_]] | None) -> None:
         """A new path and its passable test (None: no passage to check on it)."""
         self.passage = None if roomy is None else narrow_part(path, roomy)
+
+    def follow(self, follower: PathFollower, path: NDArray, roomy: Callable[[NDArray], NDArray[np.bool_]] | None) -> None:
+        """The follower's new ``path`` (K, 2), its narrow part (``set_path``) checked from now on and
+        driven at the follower's ``passage_speed``."""
+        follower.set_path(path)
+        self.set_path(follower.path, roomy)
+        self._slow(follower)
+
+    def step(
+        self, follower: PathFollower, stamp: float, pose: NDArray, returns_near: Callable[[NDArray, float], NDArray]
+    ) -> Verdict:
+        """The check of this tick, if one is ``due`` (else follow on): the follower's progress
+        advanced to ``pose`` (3,), ``returns_near(segment (2, 2), reach)`` the scan's returns within
+        ``reach`` of the passage's line; a moved path is handed to the follower here, a shut passage
+        left to the system (its returns to mark, its path to drop)."""
+        progress = follower.advance(pose[:2])
+        if not self.due(stamp, progress):
+            return Verdict()
+        assert self.passage is not None
+        returns = returns_near(np.vstack([self.passage.entry, self.passage.exit]), self.reach())
+        verdict = self.check(stamp, follower.path, progress, returns, pose)
+        if verdict.path is not None:
+            follower.set_path(verdict.path)
+            self._slow(follower)
+        return verdict
+
+    def _slow(self, follower: PathFollower) -> None:
+        if self.passage is not None:
+            follower.slow_between(self.passage.entry_arc, self.passage.exit_arc)
 
     def reach(self) -> float:
         """Metres either side of the passage's line whose returns the check needs (plus the radius)."""

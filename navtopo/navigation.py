@@ -509,13 +509,12 @@ class Navigator:
         self._plan_stamp = obs.stamp
         self._target_is_goal = _same_point(target, goal_point[0])
         self._goal_short = self._target_is_goal and not _same_point(planned.points[-1], target)
-        self.follower.set_path(planned.points)
         kind, radius, medial = self.local.levels[planned.level]
         # the narrow part checked against the scan: a medial path's stretch off the level's own cells,
         # any other's nearer the walls than the first level's margin (a door passed diagonally at the
         # radius, the pose 0.1-0.2 m off under noise, met its jamb), as the baseline's every path
         roomy = radius if medial is not None else (self.local.wide if radius < self.local.wide else None)
-        self._passages().set_path(self.follower.path, None if roomy is None else union.passable_at(kind, roomy))
+        self._passages().follow(self.follower, planned.points, None if roomy is None else union.passable_at(kind, roomy))
         if not tentative:
             self._describe(self._following(route))
         return True
@@ -665,22 +664,16 @@ class Navigator:
         """The narrow passage of the path against the scan's returns (``navkit.passages``): moved to
         their middle, or shut (its returns become obstacles, the path is dropped; False: plan again).
         True: follow on."""
-        check, follower = self._passages(), self.follower
-        progress = follower.advance(pose[:2])
-        if not check.due(obs.stamp, progress):
-            return True
-        assert check.passage is not None
-        returns = self._returns_near(obs, pose, np.vstack([check.passage.entry, check.passage.exit]), check.reach())
-        verdict = check.check(obs.stamp, follower.path, progress, returns, pose)
+        verdict = self._passages().step(
+            self.follower, obs.stamp, pose, lambda segment, reach: self._returns_near(obs, pose, segment, reach)
+        )
         if verdict.shut is not None:
             self.obstacles.mark(verdict.shut)
             self.counters["passages_blocked"] += 1
             self._path_vertex = None
-            follower.clear()
+            self.follower.clear()
             return False
-        if verdict.path is not None:
-            follower.set_path(verdict.path)
-            self.counters["passages_centred"] += 1
+        self.counters["passages_centred"] += int(verdict.path is not None)
         return True
 
     def _guard_stops(self, band: NDArray, pose: NDArray) -> bool:

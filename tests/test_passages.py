@@ -11,6 +11,7 @@ import pytest
 from baselines.metric_grid.config import PlanningConfig
 from baselines.metric_grid.occupancy import GridMap
 from baselines.metric_grid.planning import GridPlanner
+from navkit.follower import FollowerConfig, PathFollower
 from navkit.geometry import distance_to_polyline
 from navkit.passages import PassageCheck, PassageConfig
 from navkit.raster import FREE, OCCUPIED
@@ -48,6 +49,22 @@ def test_a_door_off_the_path_moves_the_path_to_its_middle(offset):
     # the moved path clears both jambs by the radius and the margin
     assert distance_to_polyline(door_returns(offset, 0.85), verdict.path).min() >= RADIUS + PassageConfig().margin - 1e-6
     assert not check.due(stamp=0.1, progress=0.6)  # not again before the period
+
+
+def test_the_follower_drives_the_passage_slowly_also_once_it_is_moved():
+    # ``follow`` and ``step`` hand the follower the passage's stretch (``slow_between``): slow
+    # through the door on the planned path and on the path the scan moved, full speed before it
+    check = PassageCheck(PassageConfig(), RADIUS)
+    follower = PathFollower(FollowerConfig())
+    check.follow(follower, straight_path(), roomy_off_door)
+    assert check.passage is not None
+    assert follower.command(np.array([0.0, -2.0, np.pi / 2])).linear == pytest.approx(1.0)
+    pose = np.array([0.0, -1.0, np.pi / 2])
+    verdict = check.step(follower, 0.0, pose, lambda segment, reach: door_returns(0.1, 0.85))
+    assert verdict.path is not None and np.array_equal(follower.path, verdict.path)
+    speeds = [follower.command(np.array([0.1, y, np.pi / 2])).linear for y in np.linspace(-0.2, 0.2, 5)]  # in the door
+    assert 0 < max(speeds) <= FollowerConfig().passage_speed + 1e-9
+    assert follower.command(np.array([0.1, 0.9, np.pi / 2])).linear > 0.9  # past it
 
 
 def test_a_door_narrower_than_the_robot_is_shut_near_it():

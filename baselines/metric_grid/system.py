@@ -328,9 +328,8 @@ class MetricGrid:
             self._last_plan_stamp = obs.stamp
             path = self._timed_plan(pose[:2], self._goal)
             if path is not None:
-                self.follower.set_path(path)
                 assert self.planner is not None
-                self.passages.set_path(self.follower.path, self.planner.roomy_at)
+                self.passages.follow(self.follower, path, self.planner.roomy_at)
                 self._describe(self._following(pose, path))
             elif not self.follower.has_path:
                 if len(self.obstacles.points) and self._recover():
@@ -388,24 +387,19 @@ class MetricGrid:
         """The narrow passage of the path against the scan's returns (``navkit.passages``): moved to
         their middle, or shut (its returns become remembered obstacles, the path is dropped; False:
         plan again). True: follow on."""
-        check, follower = self.passages, self.follower
-        progress = follower.advance(pose[:2])
-        if not check.due(obs.stamp, progress):
-            return True
-        assert check.passage is not None
-        points = np.asarray(obstacle_points(obs.points, self.band)[:, :2], dtype=np.float64)
-        segment = np.vstack([check.passage.entry, check.passage.exit])
-        returns = returns_near(transform_points(pose, points), segment, check.reach())
-        verdict = check.check(obs.stamp, follower.path, progress, returns, pose)
+
+        def near(segment: NDArray, reach: float) -> NDArray[np.float64]:
+            points = np.asarray(obstacle_points(obs.points, self.band)[:, :2], dtype=np.float64)
+            return returns_near(transform_points(pose, points), segment, reach)
+
+        verdict = self.passages.step(self.follower, obs.stamp, pose, near)
         if verdict.shut is not None:
             self.obstacles.memory.mark(verdict.shut)
             self.plan_counters["passages_blocked"] += 1
-            follower.clear()
+            self.follower.clear()
             self._last_plan_stamp = -np.inf
             return False
-        if verdict.path is not None:
-            follower.set_path(verdict.path)
-            self.plan_counters["passages_centred"] += 1
+        self.plan_counters["passages_centred"] += int(verdict.path is not None)
         return True
 
     def _recover(self) -> bool:
