@@ -104,16 +104,21 @@ class PassageCheck:
         if not self.due(stamp, progress):
             return Verdict()
         assert self.passage is not None
+        inside = self.passage.entry_arc <= progress + self.robot_radius
         returns = returns_near(np.vstack([self.passage.entry, self.passage.exit]), self.reach())
         verdict = self.check(stamp, follower.path, progress, returns, pose)
         if verdict.path is not None:
             follower.set_path(verdict.path)
-            self._slow(follower)
+            self._slow(follower, inside)
         return verdict
 
-    def _slow(self, follower: PathFollower) -> None:
+    def _slow(self, follower: PathFollower, inside: bool = False) -> None:
+        """The follower slowed over the passage, from a radius before its entry (the robot's front
+        is there when its centre is), from where it is if it is in the passage already (a moved
+        path's passage starts a radius ahead of the robot)."""
         if self.passage is not None:
-            follower.slow_between(self.passage.entry_arc, self.passage.exit_arc)
+            start = 0.0 if inside else max(self.passage.entry_arc - self.robot_radius, 0.0)
+            follower.slow_between(start, self.passage.exit_arc)
 
     def reach(self) -> float:
         """Metres either side of the passage's line whose returns the check needs (plus the radius)."""

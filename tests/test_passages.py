@@ -65,6 +65,12 @@ def test_the_follower_drives_the_passage_slowly_also_once_it_is_moved():
     speeds = [follower.command(np.array([0.1, y, np.pi / 2])).linear for y in np.linspace(-0.2, 0.2, 5)]  # in the door
     assert 0 < max(speeds) <= FollowerConfig().passage_speed + 1e-9
     assert follower.command(np.array([0.1, 0.9, np.pi / 2])).linear > 0.9  # past it
+    # a path moved with the robot in the passage already: slow from where the robot is
+    check.follow(follower, straight_path(), roomy_off_door)
+    pose = np.array([0.0, -0.2, np.pi / 2])
+    verdict = check.step(follower, 1.0, pose, lambda segment, reach: door_returns(0.1, 0.85))
+    assert verdict.path is not None
+    assert 0 < follower.command(pose).linear <= FollowerConfig().passage_speed + 1e-9
 
 
 def test_a_door_narrower_than_the_robot_is_shut_near_it():
