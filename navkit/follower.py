@@ -19,11 +19,11 @@ otherwise drive forward. Additions, each small and documented:
   a 0.15 m corner disc and passed by projection beside it, then arced round, swinging 0.06 m
   off the path onto door jambs that the planner passes with a few centimetres to spare
   (BENCHMARKS.md, "Design choices: the follower's corner rules"); with these, 0.02-0.03 m;
-* over a narrow passage of the path (a door at the robot's width and a little more; the system
-  marks it, ``slow_between``), the speed is capped at ``passage_speed``: a heading a few degrees
-  off at full speed drifts the robot sideways by centimetres before the angular correction
-  catches it, where such a door leaves ten a side (BENCHMARKS.md, "Design choices: slow
-  through a door");
+* optionally, over a narrow passage of the path (a door at the robot's width and a little more;
+  the system marks it, ``slow_between``), the speed is capped at ``passage_speed``: a heading a
+  few degrees off at full speed drifts the robot sideways by centimetres before the angular
+  correction catches it, where such a door leaves ten a side (measured, off by default:
+  BENCHMARKS.md, "Design choices: slow through a door");
 * while driving, a proportional angular correction, and a linear speed that falls smoothly to
   zero as the heading error reaches the turn-in-place threshold (no jump between the modes)
   and slows over the last ``slowdown_distance`` metres of the path.
@@ -80,9 +80,10 @@ class FollowerConfig(BaseModel):
     )
     progress_window: float = Field(default=1.5, gt=0, description="how far ahead of the progress the robot is projected, m")
     passage_speed: float = Field(
-        default=0.3,
+        default=0.0,
         ge=0,
-        description="speed limit over a narrow passage of the path (``slow_between``), m/s (0: none)",
+        description="speed limit over a narrow passage of the path (``slow_between``), m/s (0: none; 0.3 measured, "
+        "off by default: BENCHMARKS.md, 'Design choices: slow through a door')",
     )
 
     def for_robot(self, context: Any) -> FollowerConfig:

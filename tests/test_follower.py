@@ -259,7 +259,7 @@ def test_a_narrow_passage_is_driven_slowly_so_a_heading_off_does_not_drift_onto_
     start = [0.0, 0.0, math.radians(90.0 + off_deg)]
     drifts = {}
     for slow in (False, True):
-        follower = PathFollower(FollowerConfig())
+        follower = PathFollower(FollowerConfig(passage_speed=0.3))
         follower.set_path(path)
         if slow:
             follower.slow_between(0.0, 1.0)

@@ -55,7 +55,7 @@ def test_the_follower_drives_the_passage_slowly_also_once_it_is_moved():
     # ``follow`` and ``step`` hand the follower the passage's stretch (``slow_between``): slow
     # through the door on the planned path and on the path the scan moved, full speed before it
     check = PassageCheck(PassageConfig(), RADIUS)
-    follower = PathFollower(FollowerConfig())
+    follower = PathFollower(FollowerConfig(passage_speed=0.3))
     check.follow(follower, straight_path(), roomy_off_door)
     assert check.passage is not None
     assert follower.command(np.array([0.0, -2.0, np.pi / 2])).linear == pytest.approx(1.0)
@@ -63,14 +63,14 @@ def test_the_follower_drives_the_passage_slowly_also_once_it_is_moved():
     verdict = check.step(follower, 0.0, pose, lambda segment, reach: door_returns(0.1, 0.85))
     assert verdict.path is not None and np.array_equal(follower.path, verdict.path)
     speeds = [follower.command(np.array([0.1, y, np.pi / 2])).linear for y in np.linspace(-0.2, 0.2, 5)]  # in the door
-    assert 0 < max(speeds) <= FollowerConfig().passage_speed + 1e-9
+    assert 0 < max(speeds) <= follower.config.passage_speed + 1e-9
     assert follower.command(np.array([0.1, 0.9, np.pi / 2])).linear > 0.9  # past it
     # a path moved with the robot in the passage already: slow from where the robot is
     check.follow(follower, straight_path(), roomy_off_door)
     pose = np.array([0.0, -0.2, np.pi / 2])
     verdict = check.step(follower, 1.0, pose, lambda segment, reach: door_returns(0.1, 0.85))
     assert verdict.path is not None
-    assert 0 < follower.command(pose).linear <= FollowerConfig().passage_speed + 1e-9
+    assert 0 < follower.command(pose).linear <= follower.config.passage_speed + 1e-9
 
 
 def test_a_door_narrower_than_the_robot_is_shut_near_it():
