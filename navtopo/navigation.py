@@ -197,7 +197,8 @@ class Navigator:
     _added: list[tuple[int, int]] = field(default_factory=list)  # edges added this trial (``_bypass``)
     _shut_since: tuple[tuple[int, int], float] | None = None  # the route's edge new obstacles shut, since when
     _latest_new: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))  # this scan's, v_cur's frame
-    _aimed: tuple[tuple[int, tuple[int, ...]], int] | None = None  # ((v_cur, route), route points the lookahead passed)
+    # ((v_cur, route), route points the lookahead passed, its target there): ``LocalPlanner.aim``
+    _aimed: tuple[tuple[int, tuple[int, ...]], int, NDArray[np.float64]] | None = None
     passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
 
     def reset(self) -> None:
@@ -524,9 +525,9 @@ class Navigator:
     ) -> tuple[NDArray[np.float64], PlannedPath | None]:
         """The local target along the route's ``points`` (the goal last) and the path to it, or None."""
         along = (vertex, tuple(route))  # route points a cut passed by stay passed along this route
-        skip = self._aimed[1] if self._aimed is not None and self._aimed[0] == along else 0
-        target, kept = self.local.aim(union, pose, points, self._recent_obstacles(), skip)
-        self._aimed = (along, kept)
+        skip, resume = (self._aimed[1], self._aimed[2]) if self._aimed is not None and self._aimed[0] == along else (0, None)
+        target, kept = self.local.aim(union, pose, points, self._recent_obstacles(), skip, resume)
+        self._aimed = (along, kept, target)
         planned = self.local.plan(union, pose, target, self._recent_obstacles())
         if planned is None and not _same_point(target, points[0]):  # a shorter reach: the next vertex
             target, self._aimed, kept = points[0], None, 0
@@ -534,7 +535,7 @@ class Navigator:
         if len(route) == 2 and not _same_point(target, points[-1]):
             target, planned = self._goal_straight(union, pose, target, planned, points[kept:])
             if _same_point(target, points[-1]):
-                self._aimed = (along, len(points) - 1)  # the goal location's position passed
+                self._aimed = (along, len(points) - 1, target)  # the goal location's position passed
         return target, planned
 
     def _goal_straight(

@@ -511,16 +511,43 @@ class LocalPlanner:
         return self.aim(union, start, route, blocked_xy)[0]
 
     def aim(
-        self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None = None, skip: int = 0
+        self,
+        union: UnionGrid,
+        start: NDArray,
+        route: NDArray[np.float64],
+        blocked_xy: NDArray | None = None,
+        skip: int = 0,
+        resume: NDArray | None = None,
     ) -> tuple[NDArray[np.float64], int]:
         """``target``, looking from the route's point ``skip`` on, and the index of the first route
         point not yet passed: the points before the target (cut, ``target_cut``, or on the way to
         it) stay passed for the next plans along the same route (``skip``). Without that a target
         far along the route, planned to by another corridor, was followed by one at a passed route
         point behind the robot (the straight way back to it crossed a wall from the new spot), and
-        the robot went to and fro between the two until the time ran out (a shopping mall, noisy)."""
+        the robot went to and fro between the two until the time ran out (a shopping mall, noisy).
+
+        ``resume`` (2,): the last target along this route, where the route is taken up again (the
+        route points are passed there, not where the robot stands). Without it a target just past a
+        route point, beyond a door the union grid shows only as a gap, was followed by the next route
+        point itself, in a room no location of the union saw into: planned to through unknown cells,
+        the way went into another room and through its unseen wall, and the robot went to and fro
+        until the time ran out (an office ring, precise). A robot within a metre of ``resume`` (the
+        lookahead's nearest target) has reached it: the route is taken up at its point ``skip``, as
+        a path to ``resume`` again would stop the robot where it stands (short of a door the
+        lookahead's wide free space ends at; a route point beyond it is planned to by the door)."""
         skip = min(max(skip, 0), len(route) - 1)
         route = route[skip:]
+        if resume is not None and skip > 0 and float(np.hypot(*(np.asarray(resume)[:2] - start[:2]))) > 1.0:
+            target, passed = self._aim(union, start, np.vstack([np.asarray(resume, np.float64)[None, :2], route]), blocked_xy)
+            return target, skip + max(passed - 1, 0)  # the resume point is no route point
+        target, passed = self._aim(union, start, route, blocked_xy)
+        return target, skip + passed
+
+    def _aim(
+        self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None
+    ) -> tuple[NDArray[np.float64], int]:
+        """``aim`` along ``route`` from its first point: the target and the route points it passed."""
+        skip = 0
         if self.config.smoothing == "none" or len(route) == 1:
             return route[0], skip
         # lookahead: the farthest point of the polyline robot -> route in the union grid's known free

@@ -543,6 +543,39 @@ def test_route_points_the_lookahead_passed_stay_passed_along_the_route():
     assert planner.plan(union, middle, onward).length < 5.2  # along the lower corridor
 
 
+def test_the_route_is_taken_up_at_the_last_target_not_at_a_route_point_in_unseen_space():
+    """A corridor along x with a door in its north wall at its east end; the room behind it no
+    location saw (unknown). The lookahead's target went just into the door (route points before it
+    passed); from further along the corridor, the next plan takes the route up at that target, in
+    the known corridor, not at the room's route point, which only a way through unknown cells (and
+    the room's unseen wall) reaches. Within a metre of that target, the route point is the target."""
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    grid = np.full((GRID.size, GRID.size), UNKNOWN, np.uint8)
+    centre = GRID.size // 2
+    to = lambda v: centre + int(round(v / GRID.resolution))  # noqa: E731
+    grid[to(-1.2) : to(1.2), to(-1.2) : to(11.2)] = OCCUPIED
+    grid[to(-1) : to(1), to(-1) : to(11)] = FREE  # the corridor
+    grid[to(1) : to(1.6), to(9) : to(10)] = FREE  # the door, seen into a little
+    graph = _graph([[0.0, 0.0, 0.0]], [], [grid])
+    union = build_union_grid(graph, 0, GRID, radius=25.0, align=False)
+    config = PlanningConfig()
+    planner = LocalPlanner(UnionGrids(graph, GRID, config), 0.3, config)
+    route = np.array([[5.0, 0.0], [9.5, 0.0], [7.0, 3.0], [6.0, 4.0]])  # two locations, the room's, the goal
+    target, passed = planner.aim(union, np.array([0.0, 0.0, 0.0]), route)
+    assert passed == 2 and 9.0 < target[0] < 10.0 and 0.0 < target[1] < 1.6  # into the door
+    robot = np.array([3.0, 0.0, 0.0])
+    afresh, _ = planner.aim(union, robot, route, skip=passed)
+    assert np.allclose(afresh, route[2])  # in the unseen room: the old way
+    onward, still = planner.aim(union, robot, route, skip=passed, resume=target)
+    known = union.values_at(onward[None], union.cells, UNKNOWN)[0] == FREE
+    assert still == 2 and known and onward[0] > 7.0
+    planned = planner.plan(union, robot, onward)
+    assert planned is not None and planned.level == 0 and planned.length < 7.0  # along the corridor
+    near = np.array([target[0], target[1] - 0.5, np.pi / 2])
+    assert np.allclose(planner.aim(union, near, route, skip=passed, resume=target)[0], route[2])
+
+
 def test_an_edge_ahead_shut_by_new_obstacles_is_told_before_the_robot_gets_there():
     """A corridor the location saw whole, then a door shut across it 4 m ahead: the leg of the route
     through it is named (the first leg, or the second where a route point lies before the door), while
