@@ -526,22 +526,17 @@ class LocalPlanner:
         point behind the robot (the straight way back to it crossed a wall from the new spot), and
         the robot went to and fro between the two until the time ran out (a shopping mall, noisy).
 
-        ``resume`` (2,): the last target along this route, where the route is taken up again (the
-        route points are passed there, not where the robot stands). Without it a target just past a
-        route point, beyond a door the union grid shows only as a gap, was followed by the next route
-        point itself, in a room no location of the union saw into: planned to through unknown cells,
-        the way went into another room and through its unseen wall, and the robot went to and fro
-        until the time ran out (an office ring, precise). A robot within a metre of ``resume`` (the
-        lookahead's nearest target) has reached it: the route is taken up at its point ``skip``, as
-        a path to ``resume`` again would stop the robot where it stands (short of a door the
-        lookahead's wide free space ends at; a route point beyond it is planned to by the door)."""
+        ``resume`` (2,): the last target along this route, where the route is taken up instead
+        (``Navigator._local_path`` asks for it where the route point ``skip`` is reached only through
+        unknown cells). A robot within a metre of it has reached it: ``resume`` is passed over, as a
+        path to it again would stop the robot where it stands."""
         skip = min(max(skip, 0), len(route) - 1)
         route = route[skip:]
-        if resume is not None and skip > 0 and float(np.hypot(*(np.asarray(resume)[:2] - start[:2]))) > 1.0:
-            target, passed = self._aim(union, start, np.vstack([np.asarray(resume, np.float64)[None, :2], route]), blocked_xy)
-            return target, skip + max(passed - 1, 0)  # the resume point is no route point
-        target, passed = self._aim(union, start, route, blocked_xy)
-        return target, skip + passed
+        if resume is None or skip == 0 or float(np.hypot(*(np.asarray(resume)[:2] - start[:2]))) <= 1.0:
+            target, passed = self._aim(union, start, route, blocked_xy)
+            return target, skip + passed
+        target, passed = self._aim(union, start, np.vstack([np.asarray(resume, np.float64)[None, :2], route]), blocked_xy)
+        return target, skip + max(passed - 1, 0)  # the resume point is no route point
 
     def _aim(
         self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None
