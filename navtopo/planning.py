@@ -542,9 +542,9 @@ class LocalPlanner:
         self, union: UnionGrid, start: NDArray, route: NDArray[np.float64], blocked_xy: NDArray | None
     ) -> tuple[NDArray[np.float64], int]:
         """``aim`` along ``route`` from its first point: the target and the route points it passed."""
-        skip = 0
         if self.config.smoothing == "none" or len(route) == 1:
-            return route[0], skip
+            return route[0], 0
+        cut = 0
         # lookahead: the farthest point of the polyline robot -> route in the union grid's known free
         # space (eroded as the paths are, plus a little), and no nearer than the next vertex (or 1 m),
         # before the polyline first leaves that space beyond there: a route that comes back near
@@ -553,7 +553,7 @@ class LocalPlanner:
         passable = self._passable(union, "known", reach, blocked_xy=blocked_xy)
         if self.config.target_cut:
             cut = self._farthest_in_sight(union, passable, start, route)
-            route, skip = route[cut:], skip + cut
+            route = route[cut:]
         samples, legs = densify_legs(np.vstack([start[None, :2], route]), self.config.target_step)
         free = union.values_at(samples, passable, False)
         beyond_next = np.hypot(*(samples - start[:2]).T) >= min(float(np.hypot(*(route[0] - start[:2]))), 1.0)
@@ -573,12 +573,12 @@ class LocalPlanner:
             # whose end the way goes round): a point on the straight way short of the wall is a
             # dead end, and from there the next plan goes round again, and so to and fro (a
             # shopping mall's aisle, noisy: 80 s between two such targets until the time ran out)
-            return route[0], skip
+            return route[0], cut
         candidates = np.flatnonzero(free[:end] & beyond_next[:end])
         if not len(candidates):
-            return route[0], skip
+            return route[0], cut
         # a target on leg k (from route point k - 1 to k) has passed the route points before it
-        return samples[candidates[-1]], skip + int(legs[candidates[-1]])
+        return samples[candidates[-1]], cut + int(legs[candidates[-1]])
 
     @staticmethod
     def _wall_between(union: UnionGrid, a: NDArray, b: NDArray) -> bool:
