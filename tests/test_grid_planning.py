@@ -190,3 +190,34 @@ def test_a_search_bounded_to_a_ways_length_finds_what_the_whole_grid_does_within
         elif bounded is not None:
             assert grid_search.path_length(bounded, frame.resolution) >= whole - 1e-9
     assert compared >= 10
+
+
+def test_a_scan_plan_passes_a_narrow_door_into_unseen_space_before_giving_up_on_the_way_round():
+    """``ScanGrid.plan_seen_first``: the goal lies in unseen space beyond a door the scan shows 0.6 m
+    between its jambs' cells (a robot of radius 0.3 m passes it along its middle only). The way round
+    the wall's end is far longer than the detour allowed; the door's way must be found, not the plan
+    given up at the first level that has a way at all (office02, noisy: the edge was removed)."""
+    from navkit.raster import OCCUPIED, UNKNOWN
+    from navkit.scan_grid import ScanGrid
+
+    frame = GridFrame(np.array([-5.0, -5.0]), 0.1)
+    grid = np.full((100, 100), UNKNOWN, np.uint8)
+    centres = frame.to_world(np.argwhere(np.ones(grid.shape, bool))).reshape(100, 100, 2)
+    x, y = centres[..., 0], centres[..., 1]
+    grid[x < 1.0] = FREE  # the room the robot stands in, seen
+    wall = (x > 1.0) & (x < 1.1) & (np.abs(y) < 3.0)
+    door = np.abs(y) < 0.3  # six cells: 0.3 m from the middle to the jambs' centres
+    grid[wall & ~door] = OCCUPIED
+    grid[wall & door] = FREE
+    end = np.array([3.5, 0.0])  # unseen, straight through the door
+    scan = ScanGrid(grid, frame, wide=0.45, tight=0.35)
+    assert grid_search.clear_of(scan.open_squared, 0.35, 0.1)[wall & door].sum() == 0  # the door at the middle only
+
+    found = scan.plan_seen_first(end, detour=1.5, medial=0.3)
+    assert found is not None and found.level == 5  # unseen space, along the door's middle
+    way = densify(found.points, 0.02)
+    crossing = way[np.argmin(np.abs(way[:, 0] - 1.05))]
+    assert abs(crossing[1]) < 0.1 and found.length < 4.0  # through the door, not round the wall
+
+    grid[wall] = OCCUPIED  # the door shut: only the way round, 8 m against 3.5 m straight
+    assert ScanGrid(grid, frame, wide=0.45, tight=0.35).plan_seen_first(end, detour=1.5, medial=0.3) is None
