@@ -88,7 +88,7 @@ class MappingConfig(BaseModel):
     )
     correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
     degenerate_ratio: float | None = Field(
-        None,
+        2.0,
         gt=1,
         description="tracking: where the match fixes the position this many times worse along one direction than "
         "across it (the square root of its covariance's eigenvalue ratio), the pose keeps its prediction along that "

@@ -93,7 +93,7 @@ class MatchingConfig(BaseModel):
     field_iterations: int = Field(default=10, ge=0, description="Gauss-Newton steps on the distance field after ICP (0: none)")
     field_cutoff: float = Field(default=0.2, gt=0.0, description="farther cells are left out, m")
     wall_closing: int = Field(
-        default=0,
+        default=5,
         ge=0,
         description="close gaps in rows of wall cells with a square of this many cells before matching (0: off). "
         "A wall seen at a grazing angle is a dashed row (1 degree between rays: 0.3 m apart 5 m along a wall "
