@@ -92,8 +92,8 @@ class MappingConfig(BaseModel):
         gt=1,
         description="tracking: where the match fixes the position this many times worse along one direction than "
         "across it (the square root of its covariance's eigenvalue ratio), the pose keeps its prediction along that "
-        "direction (None: off; 2 measured on generated halls, rings and trees, BENCHMARKS.md, 'Design choices: "
-        "tracking along a direction the match does not fix')",
+        "direction (None: off; 2, measured on generated halls, rings and trees, BENCHMARKS.md, 'Design choices: "
+        "tracking along a direction the match does not fix'; with matching.wall_closing, as the two go together)",
     )
     edge_tolerance: float = Field(1.0, gt=0, description="a new edge agrees with the graph's path within this (m) ...")
     edge_tolerance_per_metre: float = Field(0.05, ge=0, description="... plus this share of the path length")
@@ -275,6 +275,18 @@ class MappingCounters:
 def largest_sigma(covariance: NDArray[np.float64]) -> float:
     """The standard deviation (m) along the largest axis of a pose covariance's position part."""
     return float(np.sqrt(np.linalg.eigvalsh(np.asarray(covariance, dtype=np.float64)[:2, :2])[-1]))
+
+
+def weak_direction(covariance: NDArray[np.float64] | None, ratio: float | None) -> NDArray[np.float64] | None:
+    """The direction (2,) a match with this ``covariance`` fixes the position ``ratio`` times (or more)
+    worse along than across (the square roots of its eigenvalues; ``degenerate_ratio``), or None:
+    it fixes every direction (or the check is off, or the match has no covariance)."""
+    if ratio is None or covariance is None:
+        return None
+    values, vectors = np.linalg.eigh(covariance[:2, :2])
+    if values[0] <= 0.0 or values[1] < ratio**2 * values[0]:
+        return None
+    return vectors[:, 1]
 
 
 def moved_enough(since: NDArray[np.float64], odom: NDArray[np.float64], config: MappingConfig) -> bool:
@@ -505,14 +517,11 @@ class GraphMaintainer:
         fixes poorly (``degenerate_ratio``): along an aisle or a corridor without ends in sight the
         scan says little, and what it says (dashes of a wall, a rack's end seen at a grazing angle)
         moves with the robot; there the prediction (odometry, an edge) is kept."""
-        ratio = self.config.degenerate_ratio
-        covariance = located.result.covariance
-        if ratio is None or covariance is None or located.result.overlap < self.matching.min_overlap:
+        if located.result.overlap < self.matching.min_overlap:
             return located
-        values, vectors = np.linalg.eigh(covariance[:2, :2])
-        if values[0] <= 0.0 or values[1] < ratio**2 * values[0]:
+        weak = weak_direction(located.result.covariance, self.config.degenerate_ratio)
+        if weak is None:
             return located
-        weak = vectors[:, 1]
         pose = located.pose.copy()
         pose[:2] -= weak * float(weak @ (pose[:2] - predicted[:2]))
         self.counters.remapped += 1

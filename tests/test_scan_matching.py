@@ -358,7 +358,7 @@ def test_tracking_keeps_odometry_along_a_corridor_the_match_cannot_fix():
         graph = TopologicalGraph(4)
         vertex = graph.add_vertex(CroppedGrid.from_grid(grid_at(anchor, world)), np.ones(4, np.float32), anchor, stamp=0.0)
         config = MappingConfig(degenerate_ratio=2.0, correction_per_metre=None)
-        # closed walls, as the two options are used (configs/navtopo_aisles.yaml): unclosed, the walls'
+        # closed walls, as the two options are used (the defaults): unclosed, the walls'
         # dashes claim to fix the slide (the covariance's axes within a factor of 2 here)
         matching = MatchingConfig(wall_closing=5)
         maintainer = GraphMaintainer(graph, describe, CONFIG, matching, config, LocalizationConfig(), mapping=False)
@@ -375,6 +375,39 @@ def test_tracking_keeps_odometry_along_a_corridor_the_match_cannot_fix():
         else:
             assert maintainer.counters.remapped == 0
             assert abs(error[0]) < 0.05  # the building fixes it
+
+
+def test_a_given_pose_is_not_committed_from_a_match_that_cannot_fix_it_along_a_corridor():
+    """A start from a given pose 0.4 m off along a bare corridor: the match there fixes the offset
+    across it, not the position along it (a rack hall's aisle: it slid 0.56 m and was committed, a
+    wrong start-up), so nothing is committed from it at this look; in the building, whose niches and
+    rooms fix both directions, the same given error is committed to the true pose."""
+    from navkit.types import Observation
+    from navtopo.graph import TopologicalGraph
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.startup import Startup, StartupConfig
+
+    bare = RasterWorld(-2.0, -5.0, 60.0, 10.0).add_box(-2.0, 58.0, -5.0, 5.0)
+    bare.heights[int(round(3.8 / bare.res)) : int(round(6.2 / bare.res)), :] = 0.0  # y in [-1.2, 1.2)
+    describe = lambda points: np.ones(4, dtype=np.float32)  # noqa: E731
+    for world, anchor, robot, commits in (
+        (bare, np.array([20.0, 0.2, 0.0]), np.array([21.5, -0.1, 0.05]), False),
+        (WORLD, POSE_A, np.array([10.5, 0.0, 0.15]), True),
+    ):
+        graph = TopologicalGraph(4)
+        graph.add_vertex(CroppedGrid.from_grid(grid_at(anchor, world)), np.ones(4, np.float32), anchor, stamp=0.0)
+        maintainer = GraphMaintainer(graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False)
+        startup = Startup(maintainer, describe, StartupConfig())
+        startup.map_poses = np.array([anchor])
+        startup.set_prior(compose(robot, np.array([0.4, 0.0, 0.0])))  # 0.4 m ahead along the robot's heading
+        committed = startup.step(Observation(0.0, lidar_scan(world, robot, ceiling=WALL_HEIGHT), np.zeros(3)))
+        if not commits:
+            assert committed is None and not startup.from_given_pose
+            continue
+        assert committed is not None and startup.from_given_pose
+        assert float(np.hypot(*(compose(anchor, committed.pose)[:2] - robot[:2]))) < 0.1
 
 
 def test_a_partial_view_does_not_slide_off_a_good_guess():
