@@ -398,7 +398,7 @@ def test_a_given_pose_is_not_committed_from_a_match_that_cannot_fix_it_along_a_c
     ):
         graph = TopologicalGraph(4)
         graph.add_vertex(CroppedGrid.from_grid(grid_at(anchor, world)), np.ones(4, np.float32), anchor, stamp=0.0)
-        maintainer = GraphMaintainer(graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), mapping=False)
+        maintainer = GraphMaintainer(graph, describe, CONFIG, MatchingConfig(), MappingConfig(), LocalizationConfig(), False)
         startup = Startup(maintainer, describe, StartupConfig())
         startup.map_poses = np.array([anchor])
         startup.set_prior(compose(robot, np.array([0.4, 0.0, 0.0])))  # 0.4 m ahead along the robot's heading
