@@ -456,11 +456,17 @@ class GraphMaintainer:
         if self.graph.has_edge(self.current, way[1]):
             candidates.append((way[1], self.graph.edge(self.current, way[1])))
         here = self.pose_in_current
+        reach = self.config.stay_factor * self.config.max_edge_length
         for vertex, pose_uv in candidates:
             if nearer and float(np.hypot(*(pose_uv[:2] - here[:2]))) >= float(np.hypot(here[0], here[1])):
                 continue
-            self.counters.matches += 1
             guess = between(pose_uv, here)
+            if float(np.hypot(guess[0], guess[1])) > reach:
+                # no location holds a robot this far from its centre (``_still_matches``): moved into the
+                # goal's location 8.5 m from it, the robot stood off that location's union grid, and the
+                # plan to the goal had no start (a mirror building, held out)
+                continue
+            self.counters.matches += 1
             located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
             if located is None:
                 continue

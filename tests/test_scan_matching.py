@@ -275,6 +275,24 @@ def test_out_of_reach_the_path_s_next_vertex_is_tried_before_the_nearest_neighbo
     assert pose_error_of(maintainer.pose_in_current, between(poses["C"], robot)) < 0.1
 
 
+def test_the_robot_is_not_moved_into_a_location_farther_than_any_location_holds_it():
+    """As above, C 8 m west of the robot: beyond the reach a location holds the robot in (1.5 x the
+    5 m of a location's extent), the route's next vertex is not where the robot is, though the match
+    from the graph's pose agrees (a mirror building: moved into the goal's location 8.5 m from it,
+    the robot stood off that location's union grid, and the plan to the goal had no start)."""
+    from navtopo.mapping import MappingConfig
+
+    poses, ids, make = _hall_graph(3.5)
+    maintainer = make()
+    robot = np.array([11.5, 0.0, np.pi])
+    config = MappingConfig()
+    assert np.hypot(*(robot[:2] - poses["C"][:2])) > config.stay_factor * config.max_edge_length
+    maintainer.start_at(ids["B"], between(poses["B"], robot), robot)
+    points = lidar_scan(WORLD, robot, ceiling=WALL_HEIGHT)
+    happened = maintainer.update(points, robot, stamp=1.0, route=[ids["B"], ids["C"]], force=True)
+    assert maintainer.current != ids["C"], happened
+
+
 def pose_error_of(pose, truth) -> float:
     return float(np.hypot(*(np.asarray(pose)[:2] - np.asarray(truth)[:2])))
 
