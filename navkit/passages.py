@@ -23,7 +23,6 @@ from pydantic import BaseModel, ConfigDict, Field
 from navkit.follower import PathFollower
 from navkit.geometry import arc_lengths, distance_to_polyline, point_at_arc
 from navkit.grid_planning import densify
-from navkit.obstacles import GUARD_HOLD, ObstacleMemory
 
 #: metres of the path before and after a narrow passage checked with it against the scan (the way in
 #: and out: a line through a door that turns at its mouth comes near the jambs' corners)
@@ -62,24 +61,10 @@ def returns_near(returns: NDArray, segment: NDArray, reach: float) -> NDArray[np
 @dataclass
 class Verdict:
     """A check's answer: ``path`` the path to follow from now (None: as it is); ``shut`` the
-    returns (N, 2) to mark as obstacles when the robot does not fit (then drop the path, plan again),
-    and ``line`` the passage's best line (M, 2, every 5 cm), held marked (``mark``)."""
+    returns (N, 2) to mark as obstacles when the robot does not fit (then drop the path, plan again)."""
 
     path: NDArray[np.float64] | None = None
     shut: NDArray[np.float64] | None = None
-    line: NDArray[np.float64] | None = None
-
-    def mark(self, memory: ObstacleMemory) -> None:
-        """A shut passage marked in a system's obstacle memory: its returns, and its line held through
-        ``GUARD_HOLD`` updates. The returns alone, kept on the memory's 0.1 m cells, can leave the
-        planner the very way the check shut (a return 0.335 m from it moved to a cell's centre
-        farther than the planner's radius): planned again at every tick and shut again, the robot
-        stood 22 s before a gap between shelves until it was stuck (a depot, noisy). The line is
-        free space the next scans see through, hence the hold."""
-        if self.shut is not None:
-            memory.mark(self.shut)
-        if self.line is not None:
-            memory.mark(self.line, GUARD_HOLD)
 
 
 class PassageCheck:
@@ -173,9 +158,8 @@ class PassageCheck:
             # the robot does not fit where the map showed a passage (narrower than the map's cells
             # showed it, or the pose off by more than a side's room): shut it
             moved = shifted_path(path, passage, moves)
-            line = densify(np.vstack([passage.entry + moves[0], passage.exit + moves[1]]), 0.05)
             self.passage = None
-            return Verdict(shut=returns[distance_to_polyline(returns, moved) < need], line=line)
+            return Verdict(shut=returns[distance_to_polyline(returns, moved) < need])
         inside = passage.entry_arc <= ahead < passage.exit_arc
         # the fit's best way, where it leaves the robot room; in the passage already, where it leaves
         # more than the path does (no shutting it from there: a path re-planned at a door's mouth

@@ -680,7 +680,7 @@ class Navigator:
             self.follower, obs.stamp, pose, lambda segment, reach: self._returns_near(obs, pose, segment, reach)
         )
         if verdict.shut is not None:
-            verdict.mark(self.obstacles)
+            self.obstacles.mark(verdict.shut)
             self.counters["passages_blocked"] += 1
             self._path_vertex = None
             self.follower.clear()

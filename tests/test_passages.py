@@ -83,31 +83,6 @@ def test_a_door_narrower_than_the_robot_is_shut_near_it():
     assert np.abs(verdict.shut[:, 0]).max() < 1.0  # the jambs' returns, not the whole wall
 
 
-def test_a_shut_door_stays_shut_to_the_planner_though_its_returns_sit_on_coarser_cells():
-    """A door the robot's body fits (0.335 m a side) but not with the margin: shut. Marked in an
-    obstacle memory of 0.1 m cells, its jambs' returns move to their cells' centres, and a planner
-    keeping the radius and a few centimetres from them could take the same way again (a depot,
-    noisy: planned and shut at every tick for 22 s). The verdict's line is marked too, held through
-    scans that see through the door: no way through it is left at the robot's radius."""
-    from navkit.obstacles import GUARD_HOLD, ObstacleMemory
-
-    check = PassageCheck(PassageConfig(), RADIUS)
-    path = straight_path()
-    check.set_path(path, roomy_off_door)
-    returns = door_returns(0.0, 0.67)
-    verdict = check.check(0.0, path, 1.0, returns, np.array([0.0, -1.0]))
-    assert verdict.shut is not None and verdict.line is not None
-    memory = ObstacleMemory()
-    verdict.mark(memory)
-    for k in range(GUARD_HOLD):  # scans from before the door, every ray through its middle seen beyond 3 m
-        pose = np.array([0.0, -1.0, np.pi / 2])
-        memory.update(pose, np.zeros((0, 2)), np.zeros((0, 2)), max_range=3.0)
-        blocked = np.vstack([memory.points, returns])  # the marks and the wall itself
-        across = np.stack([np.linspace(-0.3, 0.3, 13), np.zeros(13)], axis=1)  # every way through the door
-        nearest = np.array([np.hypot(*(blocked - point).T).min() for point in across])
-        assert nearest.max() < RADIUS, f"a way through the shut door after {k + 1} scans"
-
-
 def test_in_the_door_already_a_path_off_its_middle_is_moved_though_the_margin_is_not_reached():
     """A path re-planned at the door's mouth, straight through it 0.1 m off the middle, the door
     narrower than the robot and the margin: the robot is past the passage's entry (no shutting it

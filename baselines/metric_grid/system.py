@@ -394,7 +394,7 @@ class MetricGrid:
 
         verdict = self.passages.step(self.follower, obs.stamp, pose, near)
         if verdict.shut is not None:
-            verdict.mark(self.obstacles.memory)
+            self.obstacles.memory.mark(verdict.shut)
             self.plan_counters["passages_blocked"] += 1
             self.follower.clear()
             self._last_plan_stamp = -np.inf
