@@ -95,7 +95,8 @@ class MatchingConfig(BaseModel):
     wall_closing: int = Field(
         default=5,
         ge=0,
-        description="close gaps in rows of wall cells with a square of this many cells before matching (0: off). "
+        description="close gaps in rows of wall cells with a square of this many cells before matching (0: off; 5 "
+        "measured, with mapping.degenerate_ratio). "
         "A wall seen at a grazing angle is a dashed row (1 degree between rays: 0.3 m apart 5 m along a wall "
         "1.5 m away), the dashes move with the robot, and fitting them pulled the pose back toward the "
         "location's centre along a rack hall's aisle, 0.1 m per update (BENCHMARKS.md, 'Design choices: "
