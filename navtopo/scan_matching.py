@@ -102,6 +102,18 @@ class MatchingConfig(BaseModel):
         "location's centre along a rack hall's aisle, 0.1 m per update (BENCHMARKS.md, 'Design choices: "
         "closing dashed walls'). The fits use the closed walls; the verdict counts the walls seen",
     )
+    face_angle: float | None = Field(
+        default=120.0,
+        gt=0.0,
+        le=180.0,
+        description="the fits (ICP, the distance field, the covariance) pair a point only with a wall cell facing "
+        "its way within this (degrees; None: any pair): each wall cell faces its grid's observation point along "
+        "the wall's normal, so the two faces of one wall point half a turn apart. Walls a tenth of a metre thick "
+        "put both faces within the fits' reach, and a room's wall seen from inside by one grid and from the "
+        "corridor by the other was fitted face to wrong face: scans of a corridor matched against a room's "
+        "location 2-3 degrees off, a tuning wing's one-tour map 3.5 degrees off (BENCHMARKS.md, 'Design choices: "
+        "a wall's two faces'). 120, not 90: the directions of corners and posts are rough",
+    )
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
     # Chosen on generated scenes (benchmarks/tune_scan_matching.py, seeds 101-103, 1,800 near and
@@ -144,6 +156,42 @@ class MatchResult:
     source: str
     elapsed_ms: float
     covariance: NDArray[np.float64] | None = None
+
+
+FACE_STEPS = 256  # a wall cell's facing direction in steps of 2π / 256 (one byte)
+FACE_WINDOW = 5  # cells: the square whose wall cells give a wall cell's direction
+
+
+def wall_faces(walls: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[np.intp], xy: NDArray) -> NDArray[np.uint8]:
+    """The direction each wall cell faces (uint8, steps of 2π / ``FACE_STEPS``; ``rows``, ``cols``
+    its cells in ``walls``, ``xy`` their centres in the grid's frame): the normal of the wall
+    through it (the principal axes of the wall cells in a ``FACE_WINDOW`` square around it),
+    turned toward the grid's observation point (the frame's origin), which saw that face. Where
+    the cells around do not line up (a corner, a post) the direction toward the observation point."""
+    if len(rows) == 0:
+        return np.zeros(0, dtype=np.uint8)
+    mask = walls.astype(np.float64)
+    r_img, c_img = np.indices(walls.shape, dtype=np.float64)
+
+    def window_sum(image: NDArray[np.float64]) -> NDArray[np.float64]:
+        total = cv2.boxFilter(image, -1, (FACE_WINDOW, FACE_WINDOW), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        return total[rows, cols]
+
+    n = window_sum(mask)
+    mean_c, mean_r = window_sum(mask * c_img) / n, window_sum(mask * r_img) / n
+    cxx = window_sum(mask * c_img * c_img) / n - mean_c * mean_c  # x: columns, y: rows (the grid frame's layout)
+    cyy = window_sum(mask * r_img * r_img) / n - mean_r * mean_r
+    cxy = window_sum(mask * r_img * c_img) / n - mean_c * mean_r
+    spread = np.sqrt((cxx - cyy) ** 2 + 4 * cxy * cxy)  # the difference of the two eigenvalues
+    along = 0.5 * np.arctan2(2 * cxy, cxx - cyy)
+    normal = np.stack([-np.sin(along), np.cos(along)], axis=1)
+    toward = -np.asarray(xy, dtype=np.float64)
+    toward /= np.maximum(np.hypot(toward[:, 0], toward[:, 1]), 1e-9)[:, None]
+    lined = (n >= 3) & (spread > 0.5 * (cxx + cyy))  # one axis clearly the longer: a wall
+    normal = np.where(lined[:, None], normal, toward)
+    normal *= np.where(np.sum(normal * toward, axis=1) < 0, -1.0, 1.0)[:, None]
+    angle = np.arctan2(normal[:, 1], normal[:, 0])
+    return (np.rint(angle / (2 * np.pi) * FACE_STEPS).astype(np.int64) % FACE_STEPS).astype(np.uint8)
 
 
 class PreparedGrid:
@@ -192,6 +240,7 @@ class PreparedGrid:
         self.occupied_cells = cells(walls)
         rows, cols = self.occupied_cells.T  # for the nearest-wall lookup below
         self.occupied_xy = frame.to_world(self.occupied_cells)
+        self.faces = wall_faces(walls, rows - self.row0, cols - self.col0, self.occupied_xy)
         # the wall cells the lidar saw, which the verdict counts: a closed gap's cells were never
         # seen, and where the other grid holds them as free they would contradict a right match
         self.seen_xy = self.occupied_xy if walls is seen else frame.to_world(cells(seen))
@@ -236,7 +285,7 @@ class PreparedGrid:
         """Bytes of the arrays held for matching (the grid's crop to its known cells and a margin,
         the distance transform, the nearest-wall lookup, wall cells and, once computed, the
         features); the full canvas is not kept."""
-        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.nearest, self.field]
+        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.faces, self.nearest, self.field]
         total = sum(int(a.nbytes) for a in arrays)
         if self.seen_xy is not self.occupied_xy:
             total += int(self.seen_xy.nbytes)
@@ -388,13 +437,15 @@ def _cell_in_crop(x, y, row0, col0, half, resolution, height, width):  # pragma:
 
 
 @njit(cache=True, nogil=True)
-def _icp(points, pose, target_xy, nearest, row0, col0, half, resolution, distances, iterations):
+def _icp(points, pose, target_xy, nearest, row0, col0, half, resolution, distances, iterations, faces):
     """Point-to-point ICP: the pose (x, y, yaw) that puts ``points`` onto ``target_xy``.
 
     Each point's partner is the occupied cell nearest to the cell it falls in (``nearest``, a
-    crop-sized label map), kept if within the stage's distance; the closed-form 2D fit of the
-    pairs updates the pose. Stages shrink the distance so far outliers stop pulling.
+    crop-sized label map), kept if within the stage's distance and facing the point's way
+    (``faces``: ``_faces``); the closed-form 2D fit of the pairs updates the pose. Stages shrink
+    the distance so far outliers stop pulling.
     """
+    point_faces, target_faces, face_cos = faces
     height, width = nearest.shape
     x, y, yaw = pose[0], pose[1], pose[2]
     n = points.shape[0]
@@ -412,7 +463,7 @@ def _icp(points, pose, target_xy, nearest, row0, col0, half, resolution, distanc
                 if row < 0:
                     continue
                 j = np.int64(nearest[row, col]) - 1  # stored plus one: 0 is no wall
-                if j < 0:
+                if j < 0 or not _facing(point_faces[k], target_faces[j], c, s, face_cos):
                     continue
                 dx, dy = target_xy[j, 0] - px, target_xy[j, 1] - py
                 if dx * dx + dy * dy > limit:
@@ -486,10 +537,14 @@ def _known_intersection(crop_a, row0_a, col0_a, crop_b, row0_b, col0_b, pose_ab,
 
 
 @njit(cache=True, nogil=True)
-def _field_normal_equations(points, x, y, yaw, field, unit, row0, col0, half, resolution, cutoff):  # pragma: no cover
+def _field_normal_equations(
+    points, x, y, yaw, field, unit, row0, col0, half, resolution, cutoff, nearest, faces
+):  # pragma: no cover
     """Gauss-Newton's ``J^T J`` (3 x 3) and ``J^T d`` (3) of the points' bilinearly interpolated
     distances on the field (its steps of ``unit`` metres) at pose (x, y, yaw), the sum of squared
-    distances and the number of points used (those within ``cutoff``)."""
+    distances and the number of points used (those within ``cutoff`` whose nearest wall cell,
+    ``nearest``, faces their way: ``faces``, see ``_faces``)."""
+    point_faces, target_faces, face_cos = faces
     height, width = field.shape
     c, s = np.cos(yaw), np.sin(yaw)
     h = np.zeros((3, 3))
@@ -514,6 +569,9 @@ def _field_normal_equations(points, x, y, yaw, field, unit, row0, col0, half, re
         d = (1 - fv) * ((1 - fu) * f00 + fu * f01) + fv * ((1 - fu) * f10 + fu * f11)
         if d > cutoff:
             continue
+        j = np.int64(nearest[int(np.floor(v + 0.5)), int(np.floor(u + 0.5))]) - 1  # the cell the point falls in
+        if j < 0 or not _facing(point_faces[k], target_faces[j], c, s, face_cos):
+            continue
         gx = ((1 - fv) * (f01 - f00) + fv * (f11 - f10)) / resolution
         gy = ((1 - fu) * (f10 - f00) + fu * (f11 - f01)) / resolution
         jac[0], jac[1] = gx, gy
@@ -528,7 +586,7 @@ def _field_normal_equations(points, x, y, yaw, field, unit, row0, col0, half, re
 
 
 @njit(cache=True, nogil=True)
-def _field_fit(points, pose, field, unit, row0, col0, half, resolution, cutoff, iterations):
+def _field_fit(points, pose, field, unit, row0, col0, half, resolution, cutoff, nearest, faces, iterations):
     """Gauss-Newton on the distance field of the target's occupied cells: the pose minimising
     the squared, bilinearly interpolated distances of ``points`` (those within ``cutoff``).
 
@@ -537,7 +595,9 @@ def _field_fit(points, pose, field, unit, row0, col0, half, resolution, cutoff, 
     """
     x, y, yaw = pose[0], pose[1], pose[2]
     for _ in range(iterations):
-        h, g, _, used = _field_normal_equations(points, x, y, yaw, field, unit, row0, col0, half, resolution, cutoff)
+        h, g, _, used = _field_normal_equations(
+            points, x, y, yaw, field, unit, row0, col0, half, resolution, cutoff, nearest, faces
+        )
         if used < 3:
             break
         for a in range(3):
@@ -556,6 +616,30 @@ def _field(reference: PreparedGrid) -> tuple[NDArray[np.uint16], float, int, int
     return reference.field, reference.field_unit, reference.row0, reference.col0, reference.half, reference.resolution
 
 
+# each face step's unit vector
+_FACE_UNITS = np.stack(
+    [np.cos(np.arange(FACE_STEPS) * 2 * np.pi / FACE_STEPS), np.sin(np.arange(FACE_STEPS) * 2 * np.pi / FACE_STEPS)], axis=1
+)
+
+
+def _faces(reference: PreparedGrid, query: PreparedGrid, config: MatchingConfig) -> tuple[NDArray, NDArray, float]:
+    """What the fits take to pair a query point only with a reference wall cell facing its way:
+    the query's faces, the reference's, and the cosine of ``face_angle`` (below -1: any pairs)."""
+    limit = -2.0 if config.face_angle is None else float(np.cos(np.radians(config.face_angle)))
+    return query.faces, reference.faces, limit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _facing(point_face, target_face, c, s, face_cos):  # pragma: no cover
+    """Whether a query wall cell facing ``point_face`` (its frame; turned by the pose's cosine and
+    sine ``c``, ``s``) and a reference wall cell facing ``target_face`` face the same way (the
+    cosine between the two at least ``face_cos``)."""
+    if face_cos < -1.0:
+        return True
+    px, py = _FACE_UNITS[point_face, 0], _FACE_UNITS[point_face, 1]
+    return (c * px - s * py) * _FACE_UNITS[target_face, 0] + (s * px + c * py) * _FACE_UNITS[target_face, 1] >= face_cos
+
+
 def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, config: MatchingConfig) -> NDArray[np.float64]:
     """The pose's covariance (3 x 3; x, y in m², yaw in rad²) from the distance-field fit at it: the
     inverse information times the residuals' variance (at least a quarter cell's). Few walls in
@@ -564,7 +648,9 @@ def covariance(reference: PreparedGrid, query: PreparedGrid, pose: ArrayLike, co
     (BENCHMARKS.md, "Design choices: edge measurements")."""
     pose = np.asarray(pose, dtype=np.float64)
     x, y, yaw = pose[0], pose[1], pose[2]
-    h, _, squares, used = _field_normal_equations(query.occupied_xy, x, y, yaw, *_field(reference), config.field_cutoff)
+    h, _, squares, used = _field_normal_equations(
+        query.occupied_xy, x, y, yaw, *_field(reference), config.field_cutoff, reference.nearest, _faces(reference, query, config)
+    )
     if used <= 3:
         return np.diag([1.0, 1.0, 1.0])  # nothing fixes the pose: a metre and a radian
     variance = max(squares / (used - 3), (0.25 * reference.resolution) ** 2)
@@ -596,9 +682,18 @@ def refine(
             reference.resolution,
             np.asarray(config.icp_distances, dtype=np.float64),
             config.icp_iterations,
+            _faces(reference, query, config),
         )
     if config.field_iterations:
-        refined = _field_fit(query.occupied_xy, refined, *_field(reference), config.field_cutoff, config.field_iterations)
+        refined = _field_fit(
+            query.occupied_xy,
+            refined,
+            *_field(reference),
+            config.field_cutoff,
+            reference.nearest,
+            _faces(reference, query, config),
+            config.field_iterations,
+        )
     refined[2] = wrap_angle(refined[2])
     return refined
 

@@ -443,3 +443,31 @@ def test_a_partial_view_does_not_slide_off_a_good_guess():
     assert float(np.hypot(*(result.pose[:2] - guess[:2]))) < 0.05
     assert abs(wrap_angle(result.pose[2] - guess[2])) < np.radians(1.0)
     assert result.wall_agreement > 0.95
+
+
+def test_each_wall_cell_faces_the_side_its_grid_saw_it_from():
+    """A wall between two rooms, 0.2 m thick, seen from each room: the cells of its south face
+    (seen from the south room) face south, those of its north face north, whatever way the robot
+    heads; a grid matched against the other room's (the truth as the guess) pairs no wall cell,
+    as the two faces are different surfaces: the fit has nothing to fix the pose by."""
+    from navtopo.scan_matching import FACE_STEPS, covariance, prepare
+
+    world = RasterWorld(-1.0, -6.0, 12.0, 12.0).add_box(-1.0, 11.0, -6.0, 6.0)
+    rows = lambda y0, y1: slice(int(round((y0 + 6.0) / world.res)), int(round((y1 + 6.0) / world.res)))  # noqa: E731
+    columns = slice(int(round(1.0 / world.res)), int(round(10.0 / world.res)))  # x in [0, 9)
+    world.heights[rows(-5.0, -0.1), columns] = 0.0  # the south room
+    world.heights[rows(0.1, 5.0), columns] = 0.0  # the north room
+    south, north = np.array([4.0, -2.5, 0.7]), np.array([5.0, 2.5, -2.0])
+    grids = {name: prepare(grid_at(pose, world), CONFIG, MatchingConfig()) for name, pose in (("south", south), ("north", north))}
+    for name, pose, facing in (("south", south, -np.pi / 2), ("north", north, np.pi / 2)):
+        grid = grids[name]
+        world_xy = (
+            grid.occupied_xy @ np.array([[np.cos(pose[2]), np.sin(pose[2])], [-np.sin(pose[2]), np.cos(pose[2])]]) + pose[:2]
+        )
+        on_wall = (np.abs(world_xy[:, 1]) < 0.25) & (world_xy[:, 0] > 1.5) & (world_xy[:, 0] < 7.5)  # away from corners
+        assert on_wall.sum() > 20
+        angles = grid.faces[on_wall].astype(np.float64) * 2 * np.pi / FACE_STEPS + pose[2]  # in the world
+        assert np.all(np.abs(wrap_angle(angles - facing)) < np.radians(15.0))  # toward the observer
+    truth = between(south, north)
+    assert np.allclose(covariance(grids["south"], grids["north"], truth, MatchingConfig()), np.eye(3))
+    assert not np.allclose(covariance(grids["south"], grids["north"], truth, MatchingConfig(face_angle=None)), np.eye(3))
