@@ -15,7 +15,10 @@ images and an iterative outlier rejection. This file does the same job in four s
    correspondence distances (nearest neighbours come from a distance transform's label map, so an
    iteration costs a lookup instead of a k-d tree query), then Gauss-Newton on the reference's
    bilinearly interpolated distance field (a likelihood-field fit, as in Cartographer's scan
-   matcher), which acts point-to-line and removes ICP's sliding along rows of wall cells. With a
+   matcher), which acts point-to-line and removes ICP's sliding along rows of wall cells. Both pair
+   a point only with a wall cell facing its way (``wall_faces``: each cell faces the observation
+   point that saw it), so the two faces of one wall, seen from a room and from the corridor, are
+   not fitted onto each other (``face_angle``). With a
    guess, where ICP took the pose beyond the verdict's wall tolerance, the field fit from the guess
    alone is scored too and the better pose kept (ICP's wide first stages can slide a partial view);
 4. verdict: wall agreement (occupied cells of each grid that lie near occupied cells of the other,
@@ -175,7 +178,7 @@ def wall_faces(walls: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[n
 
     def window_sum(image: NDArray[np.float64]) -> NDArray[np.float64]:
         total = cv2.boxFilter(image, -1, (FACE_WINDOW, FACE_WINDOW), normalize=False, borderType=cv2.BORDER_CONSTANT)
-        return total[rows, cols]
+        return np.asarray(total[rows, cols], dtype=np.float64)
 
     n = window_sum(mask)
     mean_c, mean_r = window_sum(mask * c_img) / n, window_sum(mask * r_img) / n
