@@ -9,7 +9,7 @@ match is biased, and whether the covariance says so. Candidates override ``Match
 
     .venv/bin/python benchmarks/generate_scene.py aliased-wing --seed 134 -o /tmp/AW134.yaml
     .venv/bin/python benchmarks/match_against_location.py --scene /tmp/AW134.yaml --location-stamp 153.4 \\
-        --scans 3940:4030:6 --candidate 'off={face_angle: null}'
+        --scans 3940:4030:6 --candidate 'faces={face_angle: 120}'
 """
 
 from __future__ import annotations

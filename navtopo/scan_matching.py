@@ -16,9 +16,9 @@ images and an iterative outlier rejection. This file does the same job in four s
    iteration costs a lookup instead of a k-d tree query), then Gauss-Newton on the reference's
    bilinearly interpolated distance field (a likelihood-field fit, as in Cartographer's scan
    matcher), which acts point-to-line and removes ICP's sliding along rows of wall cells. Both pair
-   a point only with a wall cell facing its way (``wall_faces``: each cell faces the observation
-   point that saw it), so the two faces of one wall, seen from a room and from the corridor, are
-   not fitted onto each other (``face_angle``). With a
+   a point only with a wall cell facing its way, if ``face_angle`` is set (``wall_faces``: each
+   cell faces the observation point that saw it), so the two faces of one wall, seen from a room
+   and from the corridor, are not fitted onto each other (off by default, measured). With a
    guess, where ICP took the pose beyond the verdict's wall tolerance, the field fit from the guess
    alone is scored too and the better pose kept (ICP's wide first stages can slide a partial view);
 4. verdict: wall agreement (occupied cells of each grid that lie near occupied cells of the other,
@@ -106,16 +106,18 @@ class MatchingConfig(BaseModel):
         "closing dashed walls'). The fits use the closed walls; the verdict counts the walls seen",
     )
     face_angle: float | None = Field(
-        default=120.0,
+        default=None,
         gt=0.0,
         le=180.0,
         description="the fits (ICP, the distance field, the covariance) pair a point only with a wall cell facing "
-        "its way within this (degrees; None: any pair): each wall cell faces its grid's observation point along "
-        "the wall's normal, so the two faces of one wall point half a turn apart. Walls a tenth of a metre thick "
-        "put both faces within the fits' reach, and a room's wall seen from inside by one grid and from the "
-        "corridor by the other was fitted face to wrong face: scans of a corridor matched against a room's "
-        "location 2-3 degrees off, a tuning wing's one-tour map 3.5 degrees off (BENCHMARKS.md, 'Design choices: "
-        "a wall's two faces'). 120, not 90: the directions of corners and posts are rough",
+        "its way within this (degrees; None, the default: any pair; configs/navtopo_faces.yaml: 120): each wall "
+        "cell faces its grid's observation point along the wall's normal, so the two faces of one wall point half "
+        "a turn apart. Walls a tenth of a metre thick put both faces within the fits' reach, and a room's wall "
+        "seen from inside by one grid and from the corridor by the other was fitted face to wrong face (scans of "
+        "a corridor matched against a room's location 1.5-2 degrees off). Measured, off by default: the one-tour "
+        "maps' rotation errors fell on most scenes, but left the matches that share little with fewer cells and "
+        "a covariance still too sure of them (a tuning wing's map 3.02 degrees off, a held-out SLAM-like ring's "
+        "5.65 and two no_path trials; BENCHMARKS.md, 'Design choices: a wall's two faces')",
     )
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")
@@ -243,7 +245,6 @@ class PreparedGrid:
         self.occupied_cells = cells(walls)
         rows, cols = self.occupied_cells.T  # for the nearest-wall lookup below
         self.occupied_xy = frame.to_world(self.occupied_cells)
-        self.faces = wall_faces(walls, rows - self.row0, cols - self.col0, self.occupied_xy)
         # the wall cells the lidar saw, which the verdict counts: a closed gap's cells were never
         # seen, and where the other grid holds them as free they would contradict a right match
         self.seen_xy = self.occupied_xy if walls is seen else frame.to_world(cells(seen))
@@ -288,14 +289,24 @@ class PreparedGrid:
         """Bytes of the arrays held for matching (the grid's crop to its known cells and a margin,
         the distance transform, the nearest-wall lookup, wall cells and, once computed, the
         features); the full canvas is not kept."""
-        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.faces, self.nearest, self.field]
+        arrays = [self.crop, self.occupied_cells, self.occupied_xy, self.nearest, self.field]
         total = sum(int(a.nbytes) for a in arrays)
         if self.seen_xy is not self.occupied_xy:
             total += int(self.seen_xy.nbytes)
+        if "faces" in self.__dict__:
+            total += int(self.faces.nbytes)
         if "features" in self.__dict__:
             xy, descriptors = self.features
             total += int(xy.nbytes) + (int(descriptors.nbytes) if descriptors is not None else 0)
         return total
+
+    @cached_property
+    def faces(self) -> NDArray[np.uint8]:
+        """The direction each wall cell (``occupied_xy``) faces: ``wall_faces``, made on first use."""
+        rows, cols = (self.occupied_cells - [self.row0, self.col0]).T
+        walls = np.zeros(self.crop.shape, dtype=np.uint8)
+        walls[rows, cols] = 1
+        return wall_faces(walls, rows, cols, self.occupied_xy)
 
     @cached_property
     def features(self) -> tuple[NDArray, NDArray | None]:
@@ -619,6 +630,7 @@ def _field(reference: PreparedGrid) -> tuple[NDArray[np.uint16], float, int, int
     return reference.field, reference.field_unit, reference.row0, reference.col0, reference.half, reference.resolution
 
 
+_NO_FACES = np.zeros(0, dtype=np.uint8)  # the face test off: nothing is looked up
 # each face step's unit vector
 _FACE_UNITS = np.stack(
     [np.cos(np.arange(FACE_STEPS) * 2 * np.pi / FACE_STEPS), np.sin(np.arange(FACE_STEPS) * 2 * np.pi / FACE_STEPS)], axis=1
@@ -628,8 +640,9 @@ _FACE_UNITS = np.stack(
 def _faces(reference: PreparedGrid, query: PreparedGrid, config: MatchingConfig) -> tuple[NDArray, NDArray, float]:
     """What the fits take to pair a query point only with a reference wall cell facing its way:
     the query's faces, the reference's, and the cosine of ``face_angle`` (below -1: any pairs)."""
-    limit = -2.0 if config.face_angle is None else float(np.cos(np.radians(config.face_angle)))
-    return query.faces, reference.faces, limit
+    if config.face_angle is None:
+        return _NO_FACES, _NO_FACES, -2.0
+    return query.faces, reference.faces, float(np.cos(np.radians(config.face_angle)))
 
 
 @njit(cache=True, nogil=True, inline="always")
