@@ -61,7 +61,7 @@ from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import hint_chain, relaxed_poses
 from navtopo.local_grid import CroppedGrid, overlap
 from navtopo.localization import LocalizationConfig, Localized, Localizer, VertexGrids
-from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare
+from navtopo.scan_matching import MatchingConfig, PreparedGrid, prepare, refine
 
 # the way (m) a robot drives from location u's observation point to v's, v at the pose given in u's
 # frame, or None: the navigator's local planner (``planning.LocalPlanner.way_between``)
@@ -87,6 +87,16 @@ class MappingConfig(BaseModel):
         "drift (None: max_correction alone)",
     )
     correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
+    correction_turn_deg: float | None = Field(
+        2.0,
+        gt=0,
+        description="a correction may turn the pose by at most this (degrees) plus correction_turn_per_metre_deg per "
+        "metre of odometry travelled since the last verified pose (None: any turn): odometry's heading drifts a few "
+        "tenths of a degree a metre, and a match at a location's rim that turned the tracked pose 4.8 degrees in "
+        "0.9 m made a generated ring's next edge 5.65 degrees off (BENCHMARKS.md, 'Design choices: corrections "
+        "that turn')",
+    )
+    correction_turn_per_metre_deg: float = Field(2.0, ge=0, description="... plus this (degrees per metre)")
     degenerate_ratio: float | None = Field(
         2.0,
         gt=1,
@@ -123,6 +133,17 @@ class MappingConfig(BaseModel):
     edge_measurements: int = Field(
         20, ge=1, description="measurements of an edge fused into it at most (information-weighted mean)"
     )
+    measure_agreement: float | None = Field(
+        0.1,
+        gt=0,
+        description="mapping: a scan matched against an edge's two ends measures the edge only when each match lands "
+        "within this (m) and measure_agreement_deg of the distance-field fit alone from the same guess (the walls "
+        "nearest the guess); where they part, the match cost has more than one minimum near the guess and the "
+        "match's covariance, taken at one of them, is too sure: on a generated wing an edge made within 0.1 degrees "
+        "was measured 2-4.4 degrees off with a claimed 0.2-0.37 (BENCHMARKS.md, 'Design choices: edge "
+        "measurements from unambiguous matches'). None: every match measures",
+    )
+    measure_agreement_deg: float = Field(1.0, gt=0, description="... and this (degrees)")
     closure_radius: float | None = Field(
         2.5,
         gt=0,
@@ -269,6 +290,8 @@ class MappingCounters:
     shortcuts: int = 0  # mapping's end: edges between locations joined only the long way round, a way seen between them
     edges_measured: int = 0  # mapping's end: edges whose length the grids measured (Dijkstra's weights)
     remapped: int = 0  # tracking: matches whose correction along a direction they fix poorly was left out (degenerate_ratio)
+    refused_turns: int = 0  # tracking: corrections turning the pose more than odometry's drift explains (correction_turn_deg)
+    ambiguous_measurements: int = 0  # mapping: edge measurements left out, a match away from the nearest fit (measure_agreement)
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -543,6 +566,12 @@ class GraphMaintainer:
         self.counters.matches += 1
         if located is None:
             return False
+        if self.config.correction_turn_deg is not None:
+            travelled = self._odom.metres - self._odometer_verified
+            turn_limit = self.config.correction_turn_deg + self.config.correction_turn_per_metre_deg * travelled
+            if abs(wrap_angle(float(located.pose[2] - self.pose_in_current[2]))) > np.radians(turn_limit):
+                self.counters.refused_turns += 1
+                return False
         located = self._remapped(self.pose_in_current, located)
         self._odometer_verified = self._odom.metres
         self.pose_in_current = located.pose
@@ -572,7 +601,7 @@ class GraphMaintainer:
             if located is not None:
                 located = self._remapped(guess, located)
                 if self.mapping:
-                    self._refine_edge(query, self.current, vertex, located)
+                    self._refine_edge(query, self.current, vertex, located, guess)
                 self._switch(vertex, located.pose, self._located_covariance(located))
                 self.last_verified = True
                 return True
@@ -583,14 +612,30 @@ class GraphMaintainer:
         guard = 0.0 if self.mapping else self.config.shuttle_guard
         return {vertex for vertex, odometer in self._left.items() if self._odom.metres - odometer < guard}
 
-    def _refine_edge(self, query: PreparedGrid, u: int, v: int, at_v: Localized) -> None:
+    def _refine_edge(self, query: PreparedGrid, u: int, v: int, at_v: Localized, guess_v: NDArray[np.float64]) -> None:
         """Moving along an edge while mapping: the scan matched against both ends at once measures
-        ``T_uv`` with no odometry in between."""
-        at_u = self.localizer.verify(query, u, self.pose_in_current, self.config.max_correction)
+        ``T_uv`` with no odometry in between (``guess_v``: the guess ``at_v`` was matched from)."""
+        guess_u = self.pose_in_current
+        at_u = self.localizer.verify(query, u, guess_u, self.config.max_correction)
         self.counters.matches += 1
         if at_u is None:
             return
+        if not (self._unambiguous(query, at_u, guess_u) and self._unambiguous(query, at_v, guess_v)):
+            return
         self._measure_edge(u, v, *self._through(at_u.pose, self._located_covariance(at_u), at_v))
+
+    def _unambiguous(self, query: PreparedGrid, located: Localized, guess: NDArray[np.float64]) -> bool:
+        """Does the match ``located`` (matched from ``guess``) land where the distance-field fit alone
+        from the guess does, within ``measure_agreement``? Counted when not."""
+        if self.config.measure_agreement is None:
+            return True
+        nearest = refine(self.localizer.grids.get(located.vertex), query, guess, self.matching, icp=False)
+        step = between(nearest, located.result.pose)
+        moved, turned = float(np.hypot(step[0], step[1])), abs(float(step[2]))
+        if moved <= self.config.measure_agreement and turned <= np.radians(self.config.measure_agreement_deg):
+            return True
+        self.counters.ambiguous_measurements += 1
+        return False
 
     def _measure_neighbour(self, query: PreparedGrid) -> None:
         """Mapping, inside a location whose neighbour's centre is about as near as its own (within a
@@ -616,10 +661,13 @@ class GraphMaintainer:
             return
         self._odometer_at_measure[key] = self._odom.metres
         self.counters.matches += 1
-        located = self.localizer.verify(query, vertex, between(pose_uv, here), self.config.max_neighbour_jump)
+        guess = between(pose_uv, here)
+        located = self.localizer.verify(query, vertex, guess, self.config.max_neighbour_jump)
         if located is None or located.result.covariance is None or located.result.overlap < self.matching.min_overlap:
             return
         if self._claims_seen_only and not self._sees(vertex, located.pose):
+            return
+        if not self._unambiguous(query, located, guess):
             return
         self._measure_edge(self.current, vertex, *self._through(here, self.pose_covariance, located))
 

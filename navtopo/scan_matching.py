@@ -583,9 +583,10 @@ def _field_normal_equations(
         d = (1 - fv) * ((1 - fu) * f00 + fu * f01) + fv * ((1 - fu) * f10 + fu * f11)
         if d > cutoff:
             continue
-        j = np.int64(nearest[int(np.floor(v + 0.5)), int(np.floor(u + 0.5))]) - 1  # the cell the point falls in
-        if j < 0 or not _facing(point_faces[k], target_faces[j], c, s, face_cos):
-            continue
+        if face_cos >= -1.0:  # the face test on: the wall cell nearest the cell the point falls in faces its way
+            j = np.int64(nearest[int(np.floor(v + 0.5)), int(np.floor(u + 0.5))]) - 1
+            if j < 0 or not _facing(point_faces[k], target_faces[j], c, s, face_cos):
+                continue
         gx = ((1 - fv) * (f01 - f00) + fv * (f11 - f10)) / resolution
         gy = ((1 - fu) * (f10 - f00) + fu * (f11 - f01)) / resolution
         jac[0], jac[1] = gx, gy

@@ -182,6 +182,37 @@ def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_veri
     assert limits(gated, [0.25, 0.25, 5.0]) == pytest.approx([0.1, 0.15, 0.5])  # 0.05 + 0.2 x 0.25, x 0.5; capped
 
 
+def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_refused():
+    """``mapping.correction_turn_deg``: a match that turns the tracked pose by more than 2° + 2°/m of
+    the odometry travelled since the last verified pose is no correction (the pose keeps odometry's
+    heading, the refusal counted); within it, the match's pose is taken."""
+    from types import SimpleNamespace
+
+    from navkit.scan_grid import GridConfig
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    def corrected(turn_deg: float, travelled: float, config: MappingConfig) -> tuple[bool, float, int]:
+        maintainer = GraphMaintainer(
+            TopologicalGraph(4), lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), config, LocalizationConfig()
+        )
+        maintainer.current, maintainer.pose_in_current = 0, np.array([1.0, 0.5, 0.3])
+        maintainer.integrate(np.zeros(3))
+        maintainer.integrate(np.array([travelled, 0.0, 0.0]))
+        matched = maintainer.pose_in_current + np.array([0.02, 0.0, np.radians(turn_deg)])
+        maintainer.localizer.verify = lambda query, vertex, guess, max_jump: SimpleNamespace(
+            vertex=vertex, pose=matched, result=SimpleNamespace(covariance=None, overlap=1.0)
+        )
+        taken = maintainer._correct(None)
+        return taken, float(np.degrees(maintainer.pose_in_current[2] - 0.3)), maintainer.counters.refused_turns
+
+    assert corrected(1.5, 0.0, MappingConfig()) == (True, pytest.approx(1.5), 0)
+    assert corrected(4.8, 0.9, MappingConfig()) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
+    assert corrected(4.8, 1.5, MappingConfig()) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
+    assert corrected(4.8, 0.9, MappingConfig(correction_turn_deg=None)) == (True, pytest.approx(4.8), 0)
+
+
 def corridor_with_side_room(tmp_path: Path) -> Path:
     """A 14 m corridor and, through a 1 m door at x = 4.5, a 5 x 4 m room whose far corner the
     corridor cannot see."""
@@ -569,3 +600,52 @@ def test_no_location_left_is_moved_back_into_along_an_edge_not_only_the_last():
     assert maintainer._move_along_edge(None) and maintainer.current == 1  # the nearest neighbour
     assert maintainer._move_along_edge(None) and maintainer.current == 2  # 0 just left: the other one
     assert not maintainer._move_along_edge(None) and maintainer.current == 2  # both left a moment ago
+
+
+@pytest.mark.parametrize("turned_deg", [0.0, 2.0])
+def test_an_edge_measurement_from_a_match_away_from_the_walls_nearest_its_guess_is_left_out(turned_deg):
+    """Two locations 2.5 m apart along a corridor with rooms; the robot in the first, as near the
+    second. The scan matched against the second measures their edge when the match lands at the
+    walls nearest its guess (the truth here); a match turned 2° from there (one that fell into a
+    neighbouring minimum, its covariance as sure as ever) is left out and counted, the edge as it was."""
+    import dataclasses
+
+    from navkit.scan_grid import GridConfig
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig
+
+    try:
+        from test_scan_matching import grid_at
+    except ImportError:  # tests/ collected as a package
+        from tests.test_scan_matching import grid_at
+
+    first, second, robot = np.array([9.0, 0.0, 0.0]), np.array([11.5, 0.2, 0.1]), np.array([10.3, -0.1, 0.05])
+    graph = TopologicalGraph(4)
+    for k, pose in enumerate((first, second)):
+        graph.add_vertex(CroppedGrid.from_grid(grid_at(pose)), np.ones(4, np.float32), pose, float(k))
+    maintainer = GraphMaintainer(
+        graph, lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), MappingConfig(), LocalizationConfig()
+    )
+    edge = se2.between(first, second)
+    maintainer._new_edge(0, 1, edge, np.diag([0.02**2, 0.02**2, np.radians(0.5) ** 2]))
+    maintainer.current, maintainer.pose_in_current = 0, se2.between(first, robot)
+    maintainer.pose_covariance = np.diag([0.01**2, 0.01**2, np.radians(0.2) ** 2])
+    verify = maintainer.localizer.verify
+
+    def turned(query, vertex, guess, jump):
+        located = verify(query, vertex, guess, jump)
+        pose = located.result.pose + np.array([0.0, 0.0, np.radians(turned_deg)])
+        return dataclasses.replace(located, pose=pose, result=dataclasses.replace(located.result, pose=pose))
+
+    maintainer.localizer.verify = turned
+    maintainer._measure_neighbour(prepare(grid_at(robot), GridConfig(), MatchingConfig()))
+    estimate = maintainer._edges[(0, 1)]
+    if turned_deg:
+        assert (estimate.count, maintainer.counters.ambiguous_measurements) == (1, 1)
+        assert np.array_equal(graph.edge(0, 1), edge)
+    else:
+        assert (estimate.count, maintainer.counters.ambiguous_measurements) == (2, 0)
+        error = se2.between(edge, graph.edge(0, 1))
+        assert np.hypot(error[0], error[1]) < 0.05 and abs(error[2]) < np.radians(0.5)
