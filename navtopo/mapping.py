@@ -88,13 +88,14 @@ class MappingConfig(BaseModel):
     )
     correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
     correction_turn_deg: float | None = Field(
-        2.0,
+        None,
         gt=0,
         description="a correction may turn the pose by at most this (degrees) plus correction_turn_per_metre_deg per "
-        "metre of odometry travelled since the last verified pose (None: any turn): odometry's heading drifts a few "
+        "metre of odometry travelled since the last verified pose (None, the default: any turn; "
+        "configs/navtopo_faces.yaml: 2, with the face test): odometry's heading drifts a few "
         "tenths of a degree a metre, and a match at a location's rim that turned the tracked pose 4.8 degrees in "
-        "0.9 m made a generated ring's next edge 5.65 degrees off (BENCHMARKS.md, 'Design choices: corrections "
-        "that turn')",
+        "0.9 m made a generated ring's next edge 5.65 degrees off (BENCHMARKS.md, 'Design choices: ambiguous "
+        "edge measurements and corrections that turn')",
     )
     correction_turn_per_metre_deg: float = Field(2.0, ge=0, description="... plus this (degrees per metre)")
     degenerate_ratio: float | None = Field(
@@ -134,14 +135,15 @@ class MappingConfig(BaseModel):
         20, ge=1, description="measurements of an edge fused into it at most (information-weighted mean)"
     )
     measure_agreement: float | None = Field(
-        0.1,
+        None,
         gt=0,
         description="mapping: a scan matched against an edge's two ends measures the edge only when each match lands "
         "within this (m) and measure_agreement_deg of the distance-field fit alone from the same guess (the walls "
         "nearest the guess); where they part, the match cost has more than one minimum near the guess and the "
         "match's covariance, taken at one of them, is too sure: on a generated wing an edge made within 0.1 degrees "
-        "was measured 2-4.4 degrees off with a claimed 0.2-0.37 (BENCHMARKS.md, 'Design choices: edge "
-        "measurements from unambiguous matches'). None: every match measures",
+        "was measured 2-4.4 degrees off with a claimed 0.2-0.37 (BENCHMARKS.md, 'Design choices: ambiguous "
+        "edge measurements and corrections that turn'). None, the default: every match measures; "
+        "configs/navtopo_faces.yaml: 0.1, with the face test",
     )
     measure_agreement_deg: float = Field(1.0, gt=0, description="... and this (degrees)")
     closure_radius: float | None = Field(

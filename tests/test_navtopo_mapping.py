@@ -183,9 +183,10 @@ def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_veri
 
 
 def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_refused():
-    """``mapping.correction_turn_deg``: a match that turns the tracked pose by more than 2° + 2°/m of
-    the odometry travelled since the last verified pose is no correction (the pose keeps odometry's
-    heading, the refusal counted); within it, the match's pose is taken."""
+    """``mapping.correction_turn_deg`` (on in configs/navtopo_faces.yaml): a match that turns the
+    tracked pose by more than 2° + 2°/m of the odometry travelled since the last verified pose is no
+    correction (the pose keeps odometry's heading, the refusal counted); within it, the match's
+    pose is taken."""
     from types import SimpleNamespace
 
     from navkit.scan_grid import GridConfig
@@ -195,7 +196,12 @@ def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_
 
     def corrected(turn_deg: float, travelled: float, config: MappingConfig) -> tuple[bool, float, int]:
         maintainer = GraphMaintainer(
-            TopologicalGraph(4), lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), config, LocalizationConfig()
+            TopologicalGraph(4),
+            lambda points: np.ones(4, np.float32),
+            GridConfig(),
+            MatchingConfig(),
+            config,
+            LocalizationConfig(),
         )
         maintainer.current, maintainer.pose_in_current = 0, np.array([1.0, 0.5, 0.3])
         maintainer.integrate(np.zeros(3))
@@ -207,10 +213,11 @@ def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_
         taken = maintainer._correct(None)
         return taken, float(np.degrees(maintainer.pose_in_current[2] - 0.3)), maintainer.counters.refused_turns
 
-    assert corrected(1.5, 0.0, MappingConfig()) == (True, pytest.approx(1.5), 0)
-    assert corrected(4.8, 0.9, MappingConfig()) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
-    assert corrected(4.8, 1.5, MappingConfig()) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
-    assert corrected(4.8, 0.9, MappingConfig(correction_turn_deg=None)) == (True, pytest.approx(4.8), 0)
+    gated = MappingConfig(correction_turn_deg=2.0, correction_turn_per_metre_deg=2.0)  # configs/navtopo_faces.yaml's
+    assert corrected(1.5, 0.0, gated) == (True, pytest.approx(1.5), 0)
+    assert corrected(4.8, 0.9, gated) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
+    assert corrected(4.8, 1.5, gated) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
+    assert corrected(4.8, 0.9, MappingConfig()) == (True, pytest.approx(4.8), 0)  # the default: off
 
 
 def corridor_with_side_room(tmp_path: Path) -> Path:
@@ -626,7 +633,12 @@ def test_an_edge_measurement_from_a_match_away_from_the_walls_nearest_its_guess_
     for k, pose in enumerate((first, second)):
         graph.add_vertex(CroppedGrid.from_grid(grid_at(pose)), np.ones(4, np.float32), pose, float(k))
     maintainer = GraphMaintainer(
-        graph, lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), MappingConfig(), LocalizationConfig()
+        graph,
+        lambda points: np.ones(4, np.float32),
+        GridConfig(),
+        MatchingConfig(),
+        MappingConfig(measure_agreement=0.1, measure_agreement_deg=1.0),  # configs/navtopo_faces.yaml's
+        LocalizationConfig(),
     )
     edge = se2.between(first, second)
     maintainer._new_edge(0, 1, edge, np.diag([0.02**2, 0.02**2, np.radians(0.5) ** 2]))
