@@ -85,6 +85,12 @@ class NavigationConfig(BaseModel):
     passage_block_range: float = Field(
         1.5, ge=0, description="m along the path: a passage this near is shut if the robot does not fit"
     )
+    passage_mouth_margin: float | None = Field(
+        None,
+        ge=0,
+        description="m beyond the robot radius the scan must leave where the robot stands at a passage's mouth "
+        "(navkit.passages.PassageConfig.mouth_margin; None: passage_margin)",
+    )
     passage_check_period: float = Field(0.2, ge=0, description="s of simulated time between checks of a passage")
     passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")
     route_check_confirm: float = Field(
@@ -665,6 +671,7 @@ class Navigator:
             config = PassageConfig(
                 check_range=c.passage_check_range,
                 margin=c.passage_margin,
+                mouth_margin=c.passage_mouth_margin,
                 block_range=c.passage_block_range,
                 period=c.passage_check_period,
                 max_shift=c.passage_max_shift,

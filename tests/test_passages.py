@@ -130,3 +130,33 @@ def test_the_baseline_checks_a_door_its_map_draws_near_the_margin(door_m, narrow
     check = PassageCheck(PassageConfig(), RADIUS)
     check.set_path(planned.points, planner.roomy_at)
     assert (check.passage is not None) == narrow
+
+
+def thick_door(width: float, thickness: float = 0.2) -> np.ndarray:
+    """Returns of a wall ``thickness`` thick across y = 0 (x in [-3, 3]) with a door of ``width`` at
+    x = 0: both faces of the wall and the jambs' faces, every 2 cm."""
+    x = np.arange(-3.0, 3.0, 0.02)
+    x = x[np.abs(x) >= width / 2]
+    y = np.arange(-thickness / 2, thickness / 2 + 1e-9, 0.02)
+    faces = [np.stack([x, np.full_like(x, side * thickness / 2)], axis=1) for side in (-1, 1)]
+    jambs = [np.stack([np.full_like(y, side * width / 2), y], axis=1) for side in (-1, 1)]
+    return np.vstack(faces + jambs)
+
+
+@pytest.mark.parametrize("mouth_margin", [None, 0.0])
+def test_at_a_doors_mouth_the_door_is_shut_by_the_mouth_margin(mouth_margin):
+    """The robot at the mouth of a 0.8 m door (the passage's entry a radius ahead, where the fit
+    cannot move it), 0.063 m off its middle: the way in passes the jamb's corner 0.337 m off, under
+    the radius and the 0.04 m margin. Judged by the margin the door is shut (the robot then plans
+    the same way from the same spot, and shuts it again); by ``mouth_margin`` 0, what the scan
+    guard asks, it is followed. A door the robot does not fit through is shut either way."""
+    config = PassageConfig(mouth_margin=mouth_margin)
+    path = np.array([[0.063, -0.4], [0.063, 2.0]])
+    narrow = lambda xy: np.abs(xy[:, 1] - 0.3) > 0.16  # noqa: E731 - the map's verdict: the entry at the wall's face
+    check = PassageCheck(config, RADIUS)
+    check.set_path(path, narrow)
+    assert check.passage is not None and check.passage.entry_arc == pytest.approx(0.3)
+    verdict = check.check(0.0, path, 0.0, thick_door(0.8), path[0])
+    assert (verdict.shut is not None) == (mouth_margin is None)
+    check.set_path(path, narrow)
+    assert check.check(0.0, path, 0.0, thick_door(0.55), path[0]).shut is not None
