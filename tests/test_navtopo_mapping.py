@@ -148,24 +148,27 @@ def test_global_localization_finds_the_location_and_the_pose_without_a_prior(sce
     assert located >= 3
 
 
+def bare_maintainer(config, graph: TopologicalGraph | None = None):
+    """A mapping maintainer of ``config`` on ``graph`` (an empty one): one descriptor for every scan,
+    the default grids, matcher and localization."""
+    from navkit.scan_grid import GridConfig
+    from navtopo.localization import LocalizationConfig
+    from navtopo.mapping import GraphMaintainer
+    from navtopo.scan_matching import MatchingConfig
+
+    graph = TopologicalGraph(4) if graph is None else graph
+    return GraphMaintainer(
+        graph, lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), config, LocalizationConfig()
+    )
+
+
 def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_verified_pose_explains():
     """``mapping.correction_per_metre``: a correction may move the pose by at most base + k x the
     odometry travelled since the pose was last verified (never more than max_correction)."""
-    from navkit.scan_grid import GridConfig
-    from navtopo.graph import TopologicalGraph
-    from navtopo.localization import LocalizationConfig
-    from navtopo.mapping import GraphMaintainer, MappingConfig
-    from navtopo.scan_matching import MatchingConfig
+    from navtopo.mapping import MappingConfig
 
     def limits(config: MappingConfig, travelled: list[float]) -> list[float]:
-        maintainer = GraphMaintainer(
-            TopologicalGraph(4),
-            lambda points: np.ones(4, np.float32),
-            GridConfig(),
-            MatchingConfig(),
-            config,
-            LocalizationConfig(),
-        )
+        maintainer = bare_maintainer(config)
         maintainer.current = 0
         seen = []
         maintainer.localizer.verify = lambda query, vertex, guess, max_jump: seen.append(max_jump)  # never verifies
@@ -189,20 +192,10 @@ def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_
     pose is taken."""
     from types import SimpleNamespace
 
-    from navkit.scan_grid import GridConfig
-    from navtopo.localization import LocalizationConfig
-    from navtopo.mapping import GraphMaintainer, MappingConfig
-    from navtopo.scan_matching import MatchingConfig
+    from navtopo.mapping import MappingConfig
 
     def corrected(turn_deg: float, travelled: float, config: MappingConfig) -> tuple[bool, float, int]:
-        maintainer = GraphMaintainer(
-            TopologicalGraph(4),
-            lambda points: np.ones(4, np.float32),
-            GridConfig(),
-            MatchingConfig(),
-            config,
-            LocalizationConfig(),
-        )
+        maintainer = bare_maintainer(config)
         maintainer.current, maintainer.pose_in_current = 0, np.array([1.0, 0.5, 0.3])
         maintainer.integrate(np.zeros(3))
         maintainer.integrate(np.array([travelled, 0.0, 0.0]))
@@ -619,8 +612,7 @@ def test_an_edge_measurement_from_a_match_away_from_the_walls_nearest_its_guess_
 
     from navkit.scan_grid import GridConfig
     from navtopo.local_grid import CroppedGrid
-    from navtopo.localization import LocalizationConfig
-    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.mapping import MappingConfig
     from navtopo.scan_matching import MatchingConfig
 
     try:
@@ -632,14 +624,7 @@ def test_an_edge_measurement_from_a_match_away_from_the_walls_nearest_its_guess_
     graph = TopologicalGraph(4)
     for k, pose in enumerate((first, second)):
         graph.add_vertex(CroppedGrid.from_grid(grid_at(pose)), np.ones(4, np.float32), pose, float(k))
-    maintainer = GraphMaintainer(
-        graph,
-        lambda points: np.ones(4, np.float32),
-        GridConfig(),
-        MatchingConfig(),
-        MappingConfig(measure_agreement=0.1, measure_agreement_deg=1.0),  # configs/navtopo_faces.yaml's
-        LocalizationConfig(),
-    )
+    maintainer = bare_maintainer(MappingConfig(measure_agreement=0.1, measure_agreement_deg=1.0), graph)  # the config file's
     edge = se2.between(first, second)
     maintainer._new_edge(0, 1, edge, np.diag([0.02**2, 0.02**2, np.radians(0.5) ** 2]))
     maintainer.current, maintainer.pose_in_current = 0, se2.between(first, robot)
