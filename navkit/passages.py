@@ -157,8 +157,9 @@ class PassageCheck:
         moves, clearance = fit_passage(path, passage, returns, PASSAGE_LEAD, config.max_shift, from_arc=ahead)
         need = self.robot_radius + config.margin
         # at the mouth (the way in fixed where the robot stands) a shut is judged by ``mouth_margin``
-        at_mouth = config.mouth_margin is not None and passage.entry_arc <= ahead + 1e-6  # a moved path's entry: a radius ahead
-        shut_need = self.robot_radius + config.mouth_margin if at_mouth else need
+        shut_need = need
+        if config.mouth_margin is not None and passage.entry_arc <= ahead + 1e-6:  # a moved path's entry: a radius ahead
+            shut_need = self.robot_radius + config.mouth_margin
         # shut only where the passage itself lacks room: the way before and after it (``lead``) is
         # not moved by the fit, and a way that bends round a jamb just past a door the robot fits
         # through came 0.19 m from it by the scan (the pose 0.1 m off): shut, the goal's door was lost
