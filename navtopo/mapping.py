@@ -39,6 +39,7 @@ kept only as hints.
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
@@ -90,14 +91,21 @@ class MappingConfig(BaseModel):
     correction_turn_deg: float | None = Field(
         None,
         gt=0,
-        description="a correction may turn the pose by at most this (degrees) plus correction_turn_per_metre_deg per "
-        "metre of odometry travelled since the last verified pose (None, the default: any turn; "
-        "configs/navtopo_faces.yaml: 2, with the face test): odometry's heading drifts a few "
-        "tenths of a degree a metre, and a match at a location's rim that turned the tracked pose 4.8 degrees in "
-        "0.9 m made a generated ring's next edge 5.65 degrees off (BENCHMARKS.md, 'Design choices: ambiguous "
-        "edge measurements and corrections that turn')",
+        description="a correction may turn the pose, together with the corrections taken in the last "
+        "correction_turn_window metres of odometry, by at most this (degrees) plus correction_turn_per_metre_deg per "
+        "metre of odometry since the last verified pose; one that would turn it further is refused (None, the "
+        "default: any turn; configs/navtopo_faces.yaml: 2, with the face test): odometry's heading drifts a few "
+        "tenths of a degree a metre, and matches at a location's rim turned the tracked pose 4.8 degrees in 0.9 m, at "
+        "once (a held-out SLAM-like ring) or in steps of under 2 degrees (a held-out aliased ring), and the next edge "
+        "was made from it (BENCHMARKS.md, 'Design choices: ambiguous edge measurements and corrections that turn')",
     )
     correction_turn_per_metre_deg: float = Field(2.0, ge=0, description="... plus this (degrees per metre)")
+    correction_turn_window: float = Field(
+        1.0,
+        ge=0,
+        description="m of odometry: the corrections taken within this before a correction count with its turn "
+        "(the noisy setting's odometry turns 1.5 degrees in a metre at three sigmas; 0: each correction alone)",
+    )
     degenerate_ratio: float | None = Field(
         2.0,
         gt=1,
@@ -351,6 +359,8 @@ class GraphMaintainer:
         self._odom = Odometer()  # of the whole drive
         self._odom_at_update: NDArray[np.float64] | None = None
         self._odometer_verified = 0.0  # the odometer when the pose was last verified by scan matching
+        # correction_turn_deg: the corrections taken within its window, (the odometer then, the turn in radians)
+        self._turns: deque[tuple[float, float]] = deque()
         self._odometer_at_vertex: dict[int, float] = {}
         self._left: dict[int, float] = {}  # the locations moved out of, and the odometer when the robot last left each
         self._edges: dict[tuple[int, int], EdgeEstimate] = {}
@@ -387,6 +397,7 @@ class GraphMaintainer:
         self._switch(vertex, pose_in_vertex)
         self._odom.restart_from(odom)
         self._odom_at_update = np.array(odom, dtype=np.float64)
+        self._turns.clear()
 
     def forget(self) -> None:
         """No current location, no odometry: the state of a robot that has not localized yet."""
@@ -396,6 +407,7 @@ class GraphMaintainer:
         self._odom_at_update = None
         self.last_verified = False
         self._left = {}
+        self._turns.clear()
 
     def update(
         self,
@@ -568,18 +580,32 @@ class GraphMaintainer:
         self.counters.matches += 1
         if located is None:
             return False
-        if self.config.correction_turn_deg is not None:
-            travelled = self._odom.metres - self._odometer_verified
-            turn_limit = self.config.correction_turn_deg + self.config.correction_turn_per_metre_deg * travelled
-            if abs(wrap_angle(float(located.pose[2] - self.pose_in_current[2]))) > np.radians(turn_limit):
-                self.counters.refused_turns += 1
-                return False
+        if self.config.correction_turn_deg is not None and not self._turn_explained(located.pose):
+            self.counters.refused_turns += 1
+            return False
         located = self._remapped(self.pose_in_current, located)
         self._odometer_verified = self._odom.metres
         self.pose_in_current = located.pose
         self.pose_covariance = self._located_covariance(located)
         self.counters.corrections += 1
         self.last_verified = True
+        return True
+
+    def _turn_explained(self, pose: NDArray[np.float64]) -> bool:
+        """``correction_turn_deg``: does the correction to ``pose`` turn the tracked pose, with the
+        corrections taken within ``correction_turn_window`` metres before it, by no more than
+        odometry's drift since the last verified pose explains? Kept in the window when it does."""
+        config = self.config
+        assert config.correction_turn_deg is not None
+        now = self._odom.metres
+        while self._turns and now - self._turns[0][0] > config.correction_turn_window:
+            self._turns.popleft()
+        turn = float(wrap_angle(float(pose[2] - self.pose_in_current[2])))
+        turned = turn + sum(t for _, t in self._turns)
+        travelled = now - self._odometer_verified
+        if abs(turned) > np.radians(config.correction_turn_deg + config.correction_turn_per_metre_deg * travelled):
+            return False
+        self._turns.append((now, turn))
         return True
 
     def _move_along_edge(self, query: PreparedGrid) -> bool:

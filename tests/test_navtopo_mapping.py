@@ -186,31 +186,45 @@ def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_veri
 
 
 def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_refused():
-    """``mapping.correction_turn_deg`` (on in configs/navtopo_faces.yaml): a match that turns the
-    tracked pose by more than 2° + 2°/m of the odometry travelled since the last verified pose is no
-    correction (the pose keeps odometry's heading, the refusal counted); within it, the match's
-    pose is taken."""
+    """``mapping.correction_turn_deg`` (on in configs/navtopo_faces.yaml): a correction that turns the
+    tracked pose, together with the corrections taken in the last ``correction_turn_window`` metre,
+    by more than 2° + 2°/m of the odometry travelled since the last verified pose is no correction
+    (the pose keeps odometry's heading, the refusal counted); within it, the match's pose is taken.
+    Steps of under 2° at a location's rim add up (a held-out aliased ring's pose turned 4.4° so), a
+    match turning the pose back is taken, and a correction a metre on is judged afresh."""
     from types import SimpleNamespace
 
     from navtopo.mapping import MappingConfig
 
-    def corrected(turn_deg: float, travelled: float, config: MappingConfig) -> tuple[bool, float, int]:
+    def maintainer_with(config: MappingConfig):
         maintainer = bare_maintainer(config)
         maintainer.current, maintainer.pose_in_current = 0, np.array([1.0, 0.5, 0.3])
         maintainer.integrate(np.zeros(3))
-        maintainer.integrate(np.array([travelled, 0.0, 0.0]))
+        return maintainer
+
+    def correct(maintainer, turn_deg: float, travelled: float = 0.0, overlap: float = 1.0) -> tuple[bool, float, int]:
+        maintainer.integrate(maintainer._odom.last + np.array([travelled, 0.0, 0.0]))
         matched = maintainer.pose_in_current + np.array([0.02, 0.0, np.radians(turn_deg)])
         maintainer.localizer.verify = lambda query, vertex, guess, max_jump: SimpleNamespace(
-            vertex=vertex, pose=matched, result=SimpleNamespace(covariance=None, overlap=1.0)
+            vertex=vertex, pose=matched.copy(), result=SimpleNamespace(covariance=None, overlap=overlap)
         )
         taken = maintainer._correct(None)
         return taken, float(np.degrees(maintainer.pose_in_current[2] - 0.3)), maintainer.counters.refused_turns
 
     gated = MappingConfig(correction_turn_deg=2.0, correction_turn_per_metre_deg=2.0)  # configs/navtopo_faces.yaml's
-    assert corrected(1.5, 0.0, gated) == (True, pytest.approx(1.5), 0)
-    assert corrected(4.8, 0.9, gated) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
-    assert corrected(4.8, 1.5, gated) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
-    assert corrected(4.8, 0.9, MappingConfig()) == (True, pytest.approx(4.8), 0)  # the default: off
+    assert correct(maintainer_with(gated), 1.5) == (True, pytest.approx(1.5), 0)
+    assert correct(maintainer_with(gated), 4.8, 0.9) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
+    assert correct(maintainer_with(gated), 4.8, 1.5) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
+    assert correct(maintainer_with(MappingConfig()), 4.8, 0.9) == (True, pytest.approx(4.8), 0)  # the default: off
+
+    rim = maintainer_with(gated)  # matches at a location's rim, each verified: 0.1 m of odometry since
+    assert correct(rim, 1.5, 0.1) == (True, pytest.approx(1.5), 0)
+    assert correct(rim, 1.5, 0.1) == (False, pytest.approx(1.5), 1)  # 3° in 0.2 m, over 2 + 2 x 0.1
+    assert correct(rim, -1.5, 0.1) == (True, pytest.approx(0.0), 1)  # back: 0° in all
+    assert correct(rim, 1.5, 0.1) == (True, pytest.approx(1.5), 1)  # 1.5 - 1.5 + 1.5 within the metre
+    assert correct(rim, 1.5, 1.2) == (True, pytest.approx(3.0), 1)  # a metre on, the window empty: 1.5° alone
+    alone = maintainer_with(gated.model_copy(update={"correction_turn_window": 0.0}))
+    assert [correct(alone, 1.5, 0.1)[0] for _ in range(3)] == [True, True, True]  # each correction alone: 4.5° in all
 
 
 def corridor_with_side_room(tmp_path: Path) -> Path:
