@@ -89,12 +89,12 @@ class MappingConfig(BaseModel):
     )
     correction_base: float = Field(0.05, ge=0, description="... plus this (m); see correction_per_metre")
     correction_turn_deg: float | None = Field(
-        None,
+        2.0,
         gt=0,
         description="a correction may turn the pose, together with the corrections taken in the last "
         "correction_turn_window metres of odometry, by at most this (degrees) plus correction_turn_per_metre_deg per "
-        "metre of odometry since the last verified pose; one that would turn it further is refused (None, the "
-        "default: any turn; configs/navtopo_faces.yaml: 2, with the face test): odometry's heading drifts a few "
+        "metre of odometry since the last verified pose; one that would turn it further is refused (None: any "
+        "turn, configs/navtopo_before_faces.yaml): odometry's heading drifts a few "
         "tenths of a degree a metre, and matches at a location's rim turned the tracked pose 4.8 degrees in 0.9 m, at "
         "once (a held-out SLAM-like ring) or in steps of under 2 degrees (a held-out aliased ring), and the next edge "
         "was made from it (BENCHMARKS.md, 'Design choices: ambiguous edge measurements and corrections that turn')",
@@ -143,15 +143,15 @@ class MappingConfig(BaseModel):
         20, ge=1, description="measurements of an edge fused into it at most (information-weighted mean)"
     )
     measure_agreement: float | None = Field(
-        None,
+        0.1,
         gt=0,
         description="mapping: a scan matched against an edge's two ends measures the edge only when each match lands "
         "within this (m) and measure_agreement_deg of the distance-field fit alone from the same guess (the walls "
         "nearest the guess); where they part, the match cost has more than one minimum near the guess and the "
         "match's covariance, taken at one of them, is too sure: on a generated wing an edge made within 0.1 degrees "
         "was measured 2-4.4 degrees off with a claimed 0.2-0.37 (BENCHMARKS.md, 'Design choices: ambiguous "
-        "edge measurements and corrections that turn'). None, the default: every match measures; "
-        "configs/navtopo_faces.yaml: 0.1, with the face test",
+        "edge measurements and corrections that turn'). None: every match measures "
+        "(configs/navtopo_before_faces.yaml)",
     )
     measure_agreement_deg: float = Field(1.0, gt=0, description="... and this (degrees)")
     closure_radius: float | None = Field(
@@ -232,11 +232,11 @@ class MappingConfig(BaseModel):
         "0.13-0.19 m",
     )
     shortcut_detour: float = Field(
-        1.25,
+        2.0,
         ge=1.0,
         description="... the way between them at most this times the straight line (plus two cells); the edge's "
-        "length is the way's (configs/navtopo_faces.yaml: 2: a location in a corridor's dead end 2.3 m from a room's "
-        "through a door off the straight line, the way 1.5 times it, was joined only 79 m round)",
+        "length is the way's (1.25 before, configs/navtopo_before_faces.yaml: a location in a corridor's dead end "
+        "2.3 m from a room's through a door off the straight line, the way 1.5 times it, was joined only 79 m round)",
     )
     shortcut_wall_agreement: float | None = Field(
         0.80,

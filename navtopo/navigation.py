@@ -86,10 +86,11 @@ class NavigationConfig(BaseModel):
         1.5, ge=0, description="m along the path: a passage this near is shut if the robot does not fit"
     )
     passage_mouth_margin: float | None = Field(
-        None,
+        0.0,
         ge=0,
         description="m beyond the robot radius the scan must leave where the robot stands at a passage's mouth "
-        "(navkit.passages.PassageConfig.mouth_margin; None: passage_margin)",
+        "(navkit.passages.PassageConfig.mouth_margin; 0: no contact, what the scan guard asks; None: "
+        "passage_margin, as before, configs/navtopo_before_faces.yaml)",
     )
     passage_check_period: float = Field(0.2, ge=0, description="s of simulated time between checks of a passage")
     passage_max_shift: float = Field(0.3, ge=0, description="m a passage may be moved sideways to the scan's middle")

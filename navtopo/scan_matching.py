@@ -106,18 +106,18 @@ class MatchingConfig(BaseModel):
         "closing dashed walls'). The fits use the closed walls; the verdict counts the walls seen",
     )
     face_angle: float | None = Field(
-        default=None,
+        default=120.0,
         gt=0.0,
         le=180.0,
         description="the fits (ICP, the distance field, the covariance) pair a point only with a wall cell facing "
-        "its way within this (degrees; None, the default: any pair; configs/navtopo_faces.yaml: 120): each wall "
+        "its way within this (degrees; None: any pair, as before, configs/navtopo_before_faces.yaml): each wall "
         "cell faces its grid's observation point along the wall's normal, so the two faces of one wall point half "
         "a turn apart. Walls a tenth of a metre thick put both faces within the fits' reach, and a room's wall "
         "seen from inside by one grid and from the corridor by the other was fitted face to wrong face (scans of "
-        "a corridor matched against a room's location 1.5-2 degrees off). Measured, off by default: the one-tour "
-        "maps' rotation errors fell on most scenes, but left the matches that share little with fewer cells and "
-        "a covariance still too sure of them (a tuning wing's map 3.02 degrees off, a held-out SLAM-like ring's "
-        "5.65 and two no_path trials; BENCHMARKS.md, 'Design choices: a wall's two faces')",
+        "a corridor matched against a room's location 1.5-2 degrees off). With the mapping checks measure_agreement "
+        "and correction_turn_deg, which the matches that share little need (alone: a tuning wing's map 3.02 degrees "
+        "off, a held-out SLAM-like ring's 5.65; BENCHMARKS.md, 'Design choices: a wall's two faces' and 'NavTopo with "
+        "the face test and the mapping checks as the defaults')",
     )
     # verdict
     wall_tolerance: float = Field(default=0.2, gt=0.0, description="an occupied cell this near agrees")

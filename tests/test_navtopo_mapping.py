@@ -186,7 +186,7 @@ def test_gated_corrections_allow_what_the_odometry_travelled_since_the_last_veri
 
 
 def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_refused():
-    """``mapping.correction_turn_deg`` (on in configs/navtopo_faces.yaml): a correction that turns the
+    """``mapping.correction_turn_deg`` (the default): a correction that turns the
     tracked pose, together with the corrections taken in the last ``correction_turn_window`` metre,
     by more than 2° + 2°/m of the odometry travelled since the last verified pose is no correction
     (the pose keeps odometry's heading, the refusal counted); within it, the match's pose is taken.
@@ -211,11 +211,11 @@ def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_
         taken = maintainer._correct(None)
         return taken, float(np.degrees(maintainer.pose_in_current[2] - 0.3)), maintainer.counters.refused_turns
 
-    gated = MappingConfig(correction_turn_deg=2.0, correction_turn_per_metre_deg=2.0)  # configs/navtopo_faces.yaml's
+    gated = MappingConfig(correction_turn_deg=2.0, correction_turn_per_metre_deg=2.0)  # the defaults
     assert correct(maintainer_with(gated), 1.5) == (True, pytest.approx(1.5), 0)
     assert correct(maintainer_with(gated), 4.8, 0.9) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
     assert correct(maintainer_with(gated), 4.8, 1.5) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
-    assert correct(maintainer_with(MappingConfig()), 4.8, 0.9) == (True, pytest.approx(4.8), 0)  # the default: off
+    assert correct(maintainer_with(MappingConfig(correction_turn_deg=None)), 4.8, 0.9) == (True, pytest.approx(4.8), 0)  # off
 
     rim = maintainer_with(gated)  # matches at a location's rim, each verified: 0.1 m of odometry since
     assert correct(rim, 1.5, 0.1) == (True, pytest.approx(1.5), 0)
@@ -638,7 +638,7 @@ def test_an_edge_measurement_from_a_match_away_from_the_walls_nearest_its_guess_
     graph = TopologicalGraph(4)
     for k, pose in enumerate((first, second)):
         graph.add_vertex(CroppedGrid.from_grid(grid_at(pose)), np.ones(4, np.float32), pose, float(k))
-    maintainer = bare_maintainer(MappingConfig(measure_agreement=0.1, measure_agreement_deg=1.0), graph)  # the config file's
+    maintainer = bare_maintainer(MappingConfig(measure_agreement=0.1, measure_agreement_deg=1.0), graph)  # the defaults
     edge = se2.between(first, second)
     maintainer._new_edge(0, 1, edge, np.diag([0.02**2, 0.02**2, np.radians(0.5) ** 2]))
     maintainer.current, maintainer.pose_in_current = 0, se2.between(first, robot)
