@@ -101,6 +101,15 @@ class PlanningConfig(BaseModel):
         'path; 0.2 m cost 0.01-0.05 of efficiency on generated door scenes, BENCHMARKS.md, "Design choices: paths '
         'eased off walls")',
     )
+    ease_tight: bool = Field(
+        False,
+        description="a local path found only without the first level's margin (a door narrower than it allows) "
+        "is eased up to the first level's clearance where the free space allows, its points less clear than the "
+        "robot held (the door): the shortest such path hugged the corridor's wall on its way to the door, its "
+        "stretch off the first level's cells longer than a passage the scan check takes, and cut the jamb's "
+        "corner at the radius (a held-out mirror building's trial 1, precise: collision). Off by default: "
+        "measured on that trial alone",
+    )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(
         True,
@@ -647,6 +656,16 @@ class LocalPlanner:
         planned = self.plan(union, np.zeros(3), np.asarray(pose_uv, dtype=np.float64)[:2], known_only=True)
         return None if planned is None else planned.length
 
+    def _prefer(self, radius: float, medial: float | None) -> float:
+        """The clearance a level's path is eased toward (``ease_path``'s ``prefer_m``; 0: as found):
+        ``keep_clear`` beyond the first level's; with ``ease_tight``, a tight level's up to the first
+        level's; never a medial path (fitted to the scan as found, ``narrow_part``)."""
+        if medial is not None:
+            return 0.0
+        if self.config.keep_clear:
+            return self.wide + self.config.keep_clear
+        return self.wide if self.config.ease_tight and radius < self.wide else 0.0
+
     def plan(
         self,
         union: UnionGrid,
@@ -718,7 +737,7 @@ class LocalPlanner:
                 exact_goal=fits,
                 clearance=union.clearance("known"),
                 # a narrow passage's path is fitted to the scan as found (``narrow_part``)
-                prefer_m=0.0 if medial is not None or not self.config.keep_clear else self.wide + self.config.keep_clear,
+                prefer_m=self._prefer(radius, medial),
                 hold_m=self.tight,
                 search=self.search,
                 snap_through=no_wall,

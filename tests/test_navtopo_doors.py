@@ -146,6 +146,32 @@ def test_a_door_at_the_robots_width_is_passed_through_its_middle(width):
         assert missed_by_the_margin_rule >= 1
 
 
+def test_a_tight_path_to_a_door_is_eased_off_the_wall_it_would_hug_with_ease_tight():
+    """A 0.9 m door, approached from along the corridor's wall: only the tight level (no margin beyond
+    the radius) finds a way, and its shortest path hugs the wall on the way to the door at the
+    radius, its stretch off the first level's cells too long for the passage check to take
+    (narrow_part: a corridor, not a door); with planning.ease_tight the way is eased up to
+    the first level's clearance where the corridor allows: 0.1 m more room by the true walls, and
+    the door alone left for the scan check."""
+    world, walls = door_world(0.9)
+    for heading in (0.0, 20.0, 37.0):
+        graph, poses = door_locations(world, heading)
+        start = se2.between(poses[0], np.array([-2.2, -0.75, 0.0]))  # 0.75 m from the wall, 2.2 m beside the door
+        found = {}
+        for ease_tight in (False, True):
+            config = PlanningConfig(ease_tight=ease_tight)
+            planner = LocalPlanner(UnionGrids(graph, GRID, config), RADIUS, config)
+            union = planner.grids.get(0)
+            planned = planner.plan(union, start, graph.edge(0, 1)[:2])
+            assert planned is not None and planner.levels[planned.level] == ("known", planner.tight, None), heading
+            passage = narrow_part(planned.points, union.passable_at("known", planner.wide))
+            found[ease_tight] = (true_clearance(planned.points, poses[0], walls), passage, planned.length)
+        (hugged, no_passage, shortest), (eased, passage, length) = found[False], found[True]
+        assert hugged < RADIUS + 0.06 and no_passage is None, heading
+        assert eased >= RADIUS + 0.1 and passage is not None and passage.exit_arc - passage.entry_arc <= 1.0, heading
+        assert length <= 1.03 * shortest, heading
+
+
 @pytest.mark.parametrize("width", [0.5, 0.6, 0.65])
 def test_a_gap_the_robot_does_not_fit_is_never_driven_through(width):
     """Either no way on the map, or the scan leaves less than the margin there (the navigator shuts
