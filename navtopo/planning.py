@@ -108,7 +108,8 @@ class PlanningConfig(BaseModel):
         "robot held (the door): the shortest such path hugged the corridor's wall on its way to the door, its "
         "stretch off the first level's cells longer than a passage the scan check takes, and cut the jamb's "
         "corner at the radius (a held-out mirror building's trial 1, precise: collision). Off by default: "
-        "measured on that trial alone",
+        "measured on five scenes' maps and four generated tuning maps only (BENCHMARKS.md, 'Design choices: "
+        "ambiguous edge measurements and corrections that turn')",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(
