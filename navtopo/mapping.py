@@ -133,6 +133,20 @@ class MappingConfig(BaseModel):
         "between two locations, the new one not verifying it where it stands, was moved back and forth at every "
         "update, each move a plan in another frame, and turned on the spot until stuck or out of time",
     )
+    relocalize_gate: float | None = Field(
+        1.0,
+        gt=0,
+        description="navigating: a global re-localization into another location is refused where it puts the robot "
+        "farther than this (m), plus relocalize_gate_per_metre per metre of odometry since the last verified pose "
+        "and edge_tolerance_per_metre of the graph's path, from the tracked pose carried to that location along the "
+        "graph's shortest path (None: off, configs/navtopo_before_faces.yaml). Among identical rooms the scan matches "
+        "the room next door as well as the robot's own: standing in the goal's room, a robot tracked to centimetres "
+        "re-localized 3.9 m west into its twin and then room after room (a generated aliased wing, noisy; "
+        "BENCHMARKS.md, 'Design choices: re-localizing among look-alike rooms')",
+    )
+    relocalize_gate_per_metre: float = Field(
+        0.1, ge=0, description="... plus this (m per metre of odometry since the last verified pose)"
+    )
     seen_only: bool = Field(
         True,
         description="mapping: a location holds the robot only on a cell its scan saw; a room entered through a "
@@ -305,6 +319,7 @@ class MappingCounters:
     edges_measured: int = 0  # mapping's end: edges whose length the grids measured (Dijkstra's weights)
     remapped: int = 0  # tracking: matches whose correction along a direction they fix poorly was left out (degenerate_ratio)
     refused_turns: int = 0  # tracking: corrections turning the pose more than odometry's drift explains (correction_turn_deg)
+    refused_relocalizations: int = 0  # navigating: re-localizations far from the tracked pose (relocalize_gate)
     ambiguous_measurements: int = 0  # mapping: edge measurements left out, a match away from the nearest fit (measure_agreement)
     reasons: dict[str, int] = field(default_factory=dict)
 
@@ -912,6 +927,9 @@ class GraphMaintainer:
                 self._switch(located.vertex, located.pose, covariance)
                 self.last_verified = True
                 return True
+            if not self.mapping and not self._near_tracked(located):
+                self.counters.refused_relocalizations += 1
+                continue
             pose_cu, covariance_cu = self._through(self.pose_in_current, self.pose_covariance, located)
             if self.mapping and not self._edge_acceptable(self.current, located.vertex, pose_cu, covariance_cu):
                 continue
@@ -921,6 +939,26 @@ class GraphMaintainer:
             self.last_verified = True
             return True
         return False
+
+    def _near_tracked(self, located: Localized) -> bool:
+        """``relocalize_gate``, navigating: does ``located`` put the robot near where tracking has it, the
+        tracked pose carried to ``located.vertex`` along the graph's shortest path? A location the graph
+        does not reach from the current one is not gated (nothing to compare with)."""
+        assert self.current is not None
+        config = self.config
+        if config.relocalize_gate is None or located.vertex == self.current:
+            return True
+        path, path_length = self.graph.shortest_path(self.current, located.vertex)
+        if path is None:
+            return True
+        predicted = between(self.chain(path)[0], self.pose_in_current)
+        since = self._odom.metres - self._odometer_verified
+        gate = (
+            config.relocalize_gate
+            + config.relocalize_gate_per_metre * since
+            + config.edge_tolerance_per_metre * path_length
+        )
+        return float(np.hypot(*(predicted[:2] - located.pose[:2]))) <= gate
 
     def _edge_acceptable(
         self, u: int, v: int, pose_uv: NDArray[np.float64], covariance: NDArray[np.float64] | None = None

@@ -660,3 +660,38 @@ def test_an_edge_measurement_from_a_match_away_from_the_walls_nearest_its_guess_
         assert (estimate.count, maintainer.counters.ambiguous_measurements) == (2, 0)
         error = se2.between(edge, graph.edge(0, 1))
         assert np.hypot(error[0], error[1]) < 0.05 and abs(error[2]) < np.radians(0.5)
+
+
+def test_navigating_a_re_localization_into_the_look_alike_room_next_door_is_refused():
+    """Ground truth: a row of identical rooms 4 m apart, one location in each, joined along the
+    corridor; the robot, tracked in room 2 at 0.5 m from its centre, loses it (no match in room 2)
+    and localizes globally. The twin room 1 matches as well ("0.5 m from the centre") but lies 4 m
+    from where tracking puts the robot: refused and counted (a generated wing's robot re-localized so
+    into the room next door, then room after room). Room 3, matched where the robot truly stands, is
+    taken. After 40 m without a verified pose, tracking says little and the twin is taken; with
+    ``relocalize_gate`` off, as before."""
+    from types import SimpleNamespace
+
+    from navtopo.localization import Localized
+    from navtopo.mapping import MappingConfig
+
+    def relocalized(found_in: list[tuple[int, list[float]]], travelled: float = 0.0, gate: float | None = 1.0):
+        maintainer = _agreeing_maintainer([(0.0, 0.0), (4.0, 0.0), (8.0, 0.0), (12.0, 0.0)], [(0, 1), (1, 2), (2, 3)])
+        maintainer.config = MappingConfig(relocalize_gate=gate)
+        maintainer.start_at(2, np.array([0.5, 0.0, 0.0]), np.zeros(3))  # truly at x = 8.5
+        maintainer.integrate(np.array([travelled, 0.0, 0.0]))
+        maintainer.pose_in_current = np.array([0.5, 0.0, 0.0])  # odometry kept it (the drive was a turn)
+        match = SimpleNamespace(covariance=None, overlap=1.0)
+        maintainer.localizer.localize = lambda *args, **kwargs: [
+            Localized(vertex, np.array(pose), match) for vertex, pose in found_in
+        ]
+        taken = maintainer._localize(None, np.zeros((0, 3), np.float32), np.zeros(3))
+        return taken, maintainer.current, maintainer.counters.refused_relocalizations
+
+    twin = (1, [0.5, 0.0, 0.0])  # the same view in the room 4 m west
+    truth = (3, [-3.5, 0.0, 0.0])  # room 3's frame: 8.5 - 12
+    assert relocalized([twin]) == (False, 2, 1)
+    assert relocalized([twin, truth]) == (True, 3, 1)
+    assert relocalized([(3, [-3.0, 0.3, 0.0])]) == (True, 3, 0)  # 0.58 m off: within 1 m + 0.05 x 4 m of path
+    assert relocalized([twin], travelled=40.0) == (True, 1, 0)  # 1 + 0.1 x 40 + 0.05 x 4 = 5.2 m: lost long ago
+    assert relocalized([twin], gate=None) == (True, 1, 0)
