@@ -42,6 +42,15 @@ EDGE_SIGMA_XY = 0.05  # m: scan matching of location grids (edge errors ~4 cm me
 EDGE_SIGMA_YAW = np.radians(0.5)
 HINT_FLOOR_XY = 0.001  # m: no relative hint is trusted more than this ...
 HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
+# m/sqrt(m): the least noise a lidar hint is given per metre between two locations. Read off the
+# data, the lidar hints' noise is nil (the lidar odometry agrees with each edge better than the edge is
+# sure of itself), and at HINT_FLOOR_XY no loop closure could bend them: along corridors of look-alike
+# rooms the lidar odometry slid 0.1-0.2 m a corridor, and a generated noisy wing's map poses were 0.5 m
+# off 20-30 m from the map's origin (goals converted that far off ended `reached_wrong_place`). 0.005 m
+# per sqrt(m) (0.05 m over 100 m), chosen on ten generated noisy maps: the worst location 0.50 -> 0.24 m,
+# none left over 0.25 m (9.7 % before); 0.0025 or 0.01 left 1-3 % (BENCHMARKS.md, "Design choices: the
+# lidar hints' drift floor for map poses")
+LIDAR_DRIFT_XY = 0.005
 ANCHOR_SIGMA = 1e-6
 EXPLAINED = 2.0  # what the edges explain of the disagreement, in their variances (see _hint_noise)
 CHI2_MEDIAN_1 = 0.4549  # median of chi-square with 1 degree of freedom
@@ -141,8 +150,10 @@ def relaxed_poses(graph: TopologicalGraph, iterations: int = 10) -> NDArray[np.f
     if n == 1:  # nothing to relax (the constraints below would be none): the first vertex anchors the frame
         return np.asarray(hint_chain(graph)[1], dtype=np.float64).copy()
     travel = _travel(graph, np.array([v.pose_hint for v in graph.vertices], dtype=np.float64))
-    _, hints = hint_chain(graph)
+    kind, hints = hint_chain(graph)
     k_xy, k_yaw = _hint_noise(graph, travel, hints)
+    if kind == "lidar":
+        k_xy = max(k_xy, LIDAR_DRIFT_XY)
     edges = graph.edges()
     chain = np.arange(1, n)
     metres = np.maximum(np.abs(travel[chain] - travel[chain - 1]), 0.1)
