@@ -232,6 +232,7 @@ class Navigator:
                 "scan_plans",
                 "recoveries",
                 "edges_shut_ahead",
+                "longer_ways",
                 "bypass_edges",
                 "scan_guard_stops",
             ],
@@ -501,6 +502,10 @@ class Navigator:
                 continue  # only the remembered obstacles stopped it: forgotten, planned again
             if len(route) == 1:
                 break  # in the goal's location: no edge to remove
+            longer = self._longer_way(union, pose, route, points[0])
+            if longer is not None:
+                target, planned = points[0], longer
+                break
             # no way to the next vertex in the union grid (a closed door, an obstacle the map lacks)
             self.counters["plans_failed"] += 1
             self._remove_edge(route, positions, 0, "no local path", self._recent_obstacles())
@@ -599,6 +604,24 @@ class Navigator:
         self.counters["edges_shut_ahead"] += 1
         self._remove_edge(route, self.graph.path_poses(route), leg, "shut ahead", self._latest_new)
         return True
+
+    def _longer_way(self, union: UnionGrid, pose: NDArray, route: list[int], target: NDArray) -> PlannedPath | None:
+        """Before the route's first edge goes for want of a local path: a way to the next vertex
+        (``target``) through cells no location saw, longer than ``planning.unknown_detour`` allows, as
+        long as it still beats the route round without the edge (counted, ``longer_ways``). A robot
+        starting in a room no location saw, its door 2 m behind it, had its way out refused (7.6 m
+        against 2.7 m straight to the next location, through the wall between rooms) and went round
+        a ring of 85 m for a goal 15 m away (an aliased wing, noisy)."""
+        round_m = self.global_planner.distance_without(route[0], route[0], route[1])
+        # no way round at all: any way the union grid holds (twice its sides, a bound for the search)
+        bound = min(round_m - self.global_planner.distance(route[1]), 2.0 * sum(union.cells.shape) * union.frame.resolution)
+        straight = float(np.hypot(*(np.asarray(target)[:2] - pose[:2])))
+        if bound <= self.local.config.unknown_detour * straight + 1.0:
+            return None  # no longer than the plan already allowed
+        planned = self.local.plan(union, pose, target, self._recent_obstacles(), detour_m=bound)
+        if planned is not None:
+            self.counters["longer_ways"] += 1
+        return planned
 
     def _remove_edge(self, route: list[int], positions: NDArray, leg: int, why: str, obstacles: NDArray) -> None:
         """The route's edge ``leg`` (route[leg] -> route[leg + 1]; ``positions``: the route's vertices in

@@ -188,6 +188,11 @@ class GlobalPlanner:
         assert self._distance is not None
         return float(self._distance[start])
 
+    def distance_without(self, start: int, u: int, v: int) -> float:
+        """The graph distance from ``start`` to the goal were the edge (u, v) removed too (inf: none)."""
+        assert self.goal is not None
+        return float(self.graph.dijkstra(self.goal, self.removed | {frozenset((u, v))})[0][start])
+
     @property
     def nbytes(self) -> int:
         arrays = [a for a in (self._distance, self._toward_goal) if a is not None]
@@ -675,10 +680,12 @@ class LocalPlanner:
         blocked_xy: NDArray | None = None,
         known_only: bool = False,
         probe: bool = False,
+        detour_m: float | None = None,
     ) -> PlannedPath | None:
         """A path from ``start`` (3,) to ``target`` (2,) in the union grid, new obstacles blocked; None
         if there is none, or only ones through unknown cells far round (``unknown_detour``: such a way
-        found on one level is passed over for the next). ``known_only``: no level through unknown cells.
+        found on one level is passed over for the next; ``detour_m``: the longest such way, in metres,
+        instead). ``known_only``: no level through unknown cells.
         ``probe``: asked whether the new obstacles shut the way (``blocked_leg``), which they often do.
 
         The levels are tried in order (``navkit.grid_planning.plan_path`` on each): a level whose
@@ -704,7 +711,7 @@ class LocalPlanner:
         # robot in a room no location saw, the pose 0.2 m off, snapped to a corridor a metre away
         # through the wall and drove into it; office02, noisy)
         no_wall = union.cells != OCCUPIED
-        detour = self.config.unknown_detour * float(np.hypot(*(target - start[:2]))) + 1.0
+        detour = self.config.unknown_detour * float(np.hypot(*(target - start[:2]))) + 1.0 if detour_m is None else detour_m
         reach: NDArray[np.bool_] | None = None
         planned = None
         for level, (kind, radius, medial) in enumerate(self.levels):

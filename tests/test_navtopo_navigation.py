@@ -764,3 +764,49 @@ def test_a_goal_shut_off_by_remembered_obstacles_in_its_own_location_is_recovere
         assert np.hypot(*(nav.follower.path[-1] - goal_here)) < 0.3
     else:
         assert nav.status.reason == "no_path"
+
+
+@pytest.mark.parametrize("round_m", [40.0, None, 6.0])
+def test_a_way_out_of_an_unseen_room_is_taken_rather_than_the_edge_when_the_route_round_is_longer(round_m):
+    """The robot stands in a room no location saw (unknown cells), its door 2.5 m east, the next
+    location 3 m west along the corridor beyond the wall between rooms (new obstacles its scan shows).
+    The way out by the door (about 2.3 times the straight line) is longer than ``unknown_detour``
+    allows, and the edge would go; a robot sent round a ring of 85 m for a goal 15 m away (a
+    generated wing, noisy). ``_longer_way`` takes it while it beats the route without the edge (a
+    40 m ring, or no other way at all); with a way round of 6 m the edge still goes."""
+    from navtopo.navigation import Navigator
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    def world(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cells = np.full(x.shape, UNKNOWN)
+        cells[(np.abs(y) < 1.0) & (np.abs(x) < 8.0)] = FREE  # the corridor along x, seen
+        cells[(np.abs(y) >= 1.0) & (np.abs(y) < 1.2) & (np.abs(x) < 8.0)] = OCCUPIED  # its walls ...
+        door = (x >= 2.0) & (x < 3.2)
+        cells[door & (y > -2.2) & (y < -1.0)] = FREE  # ... the room's door at x 2..3.2, seen a little way in
+        cells[(y > -5.2) & (y < -5.0) & (x > 1.5) & (x < 3.5)] = OCCUPIED  # and its far wall
+        return cells
+
+    poses = [[0.0, 0.0, 0.0], [-3.0, 0.0, 0.0]]
+    edges = [(0, 1)]
+    if round_m is not None:  # a way round: 0 -> 2 -> 1, round_m long in all
+        poses.append([0.0, round_m / 2.0 - 1.5, 0.0])
+        edges += [(0, 2), (2, 1)]
+    graph = _graph(poses, edges, [_painted(pose, world) for pose in poses])
+    union = build_union_grid(graph, 0, GRID, radius=4.0)
+    config = PlanningConfig()
+    navigator = Navigator.__new__(Navigator)
+    navigator.local = LocalPlanner(UnionGrids(graph, GRID, config), 0.3, config)
+    navigator.global_planner = GlobalPlanner(graph)
+    navigator.global_planner.set_goal(1)
+    navigator.counters = {"longer_ways": 0}
+    wall = np.array([[-1.0, y] for y in np.arange(-5.0, -1.2, 0.05)])  # between the rooms, as scanned
+    navigator._recent_obstacles = lambda: wall
+    robot, target = np.array([0.5, -2.8, 0.0]), np.array([-3.0, 0.0])
+    assert navigator.local.plan(union, robot, target, wall) is None  # the plan alone: refused, the edge would go
+    longer = navigator._longer_way(union, robot, [0, 1], target)
+    if round_m == 6.0:
+        assert longer is None and navigator.counters["longer_ways"] == 0
+        return
+    assert longer is not None and navigator.counters["longer_ways"] == 1
+    assert longer.points[:, 0].max() > 2.0  # out by the door, not through the wall
+    assert longer.length > config.unknown_detour * float(np.hypot(*(target - robot[:2]))) + 1.0
