@@ -8,6 +8,11 @@ The runner records the true pose where each location was made (``mapping/navtopo
 ground truth; the system never does.
 
     .venv/bin/python benchmarks/bench_navtopo_graph_poses.py RUN_DIR [RUN_DIR ...]
+
+``--lidar-drift 0,0.005,...`` sweeps the lidar hints' drift floor (``graph_poses.LIDAR_DRIFT_XY``)
+instead: per floor, each run's worst location, and over the runs the mean of the medians and p95s,
+the worst location and the share of locations over 0.25 m (a goal converted that far off may end
+0.5 m from the goal by the stop tolerance of 0.25 m).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from navkit import geometry as se2
+from navtopo import graph_poses
 from navtopo.graph import TopologicalGraph
 from navtopo.graph_poses import hint_chain, relaxed_poses
 
@@ -35,10 +41,39 @@ def errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     }
 
 
+def load(run: Path) -> tuple[TopologicalGraph, np.ndarray]:
+    """A run's saved NavTopo map and the true poses of its locations in the map frame."""
+    mapping = json.loads((run / "mapping" / "navtopo.json").read_text())
+    graph, _ = TopologicalGraph.load(run / "maps" / "navtopo")
+    anchors = {round(row[0], 6): np.array(row[1:4]) for row in mapping["anchors"]}
+    origin = np.array(anchors[round(graph.vertices[0].stamp, 6)])
+    return graph, np.array([se2.between(origin, anchors[round(v.stamp, 6)]) for v in graph.vertices])
+
+
+def sweep_lidar_drift(runs: list[Path], floors: list[float]) -> None:
+    maps = [(run.name, *load(run)) for run in runs]
+    for floor in floors:
+        graph_poses.LIDAR_DRIFT_XY = floor
+        rows = []
+        for _, graph, truth in maps:
+            translation = np.hypot(*(relaxed_poses(graph)[:, :2] - truth[:, :2]).T)
+            rows.append((np.median(translation), np.percentile(translation, 95), translation.max(), np.mean(translation > 0.25)))
+        table = np.array(rows)
+        worst = " ".join(f"{name} {row[2]:.2f}" for (name, *_), row in zip(maps, rows, strict=True))
+        print(
+            f"floor {floor:.4f}: median {table[:, 0].mean():.3f}  p95 {table[:, 1].mean():.3f}  worst {table[:, 2].max():.3f}"
+            f"  over 0.25 m {100 * table[:, 3].mean():.1f} %  | worst by run: {worst}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dirs", type=Path, nargs="+")
+    parser.add_argument("--lidar-drift", help="comma-separated floors (m/sqrt(m)) to sweep")
     args = parser.parse_args()
+    if args.lidar_drift:
+        sweep_lidar_drift(args.run_dirs, [float(f) for f in args.lidar_drift.split(",")])
+        return
     for run in args.run_dirs:
         manifest = json.loads((run / "manifest.json").read_text())
         mapping = json.loads((run / "mapping" / "navtopo.json").read_text())

@@ -47,9 +47,9 @@ HINT_FLOOR_YAW = np.radians(0.01)  # ... or this
 # sure of itself), and at HINT_FLOOR_XY no loop closure could bend them: along corridors of look-alike
 # rooms the lidar odometry slid 0.1-0.2 m a corridor, and a generated noisy wing's map poses were 0.5 m
 # off 20-30 m from the map's origin (goals converted that far off ended `reached_wrong_place`). 0.005 m
-# per sqrt(m) (0.05 m over 100 m), chosen on ten generated noisy maps: the worst location 0.50 -> 0.24 m,
-# none left over 0.25 m (9.7 % before); 0.0025 or 0.01 left 1-3 % (BENCHMARKS.md, "Design choices: the
-# lidar hints' drift floor for map poses")
+# per sqrt(m) (0.05 m over 100 m), chosen on eleven generated noisy maps: the worst location 0.50 -> 0.24 m,
+# none left over 0.25 m (6.5 % before); 0.0025 or 0.01 left 1.1 and 2.3 % (BENCHMARKS.md, "Design
+# choices: the lidar hints' drift floor for map poses")
 LIDAR_DRIFT_XY = 0.005
 ANCHOR_SIGMA = 1e-6
 EXPLAINED = 2.0  # what the edges explain of the disagreement, in their variances (see _hint_noise)
