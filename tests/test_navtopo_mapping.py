@@ -695,3 +695,39 @@ def test_navigating_a_re_localization_into_the_look_alike_room_next_door_is_refu
     assert relocalized([(3, [-3.0, 0.3, 0.0])]) == (True, 3, 0)  # 0.58 m off: within 1 m + 0.05 x 4 m of path
     assert relocalized([twin], travelled=40.0) == (True, 1, 0)  # 1 + 0.1 x 40 + 0.05 x 4 = 5.2 m: lost long ago
     assert relocalized([twin], gate=None) == (True, 1, 0)
+
+
+def test_a_turning_correction_whose_match_leaves_the_nearest_fit_is_refused_with_correction_agreement(monkeypatch):
+    """``mapping.correction_agreement``: a correction turning the pose more than
+    ``measure_agreement_deg`` is taken only where the distance-field fit alone from the same guess
+    lands with the match (a match at a location's rim turned a generated noisy mirror building's pose
+    4.4° the wrong way, the fit alone 4.36° from it); one that turns less is taken unchecked."""
+    from types import SimpleNamespace
+
+    from navtopo import mapping as mapping_module
+    from navtopo.mapping import MappingConfig
+
+    def correct(turn_deg: float, fit_follows: bool, agreement: bool = True) -> tuple[bool, int, int]:
+        maintainer = bare_maintainer(MappingConfig(correction_agreement=agreement, correction_turn_deg=None))
+        maintainer.current, maintainer.pose_in_current = 0, np.array([1.0, 0.5, 0.3])
+        maintainer.integrate(np.zeros(3))
+        matched = maintainer.pose_in_current + np.array([0.02, 0.0, np.radians(turn_deg)])
+        result = SimpleNamespace(covariance=None, overlap=1.0, pose=matched.copy())
+        maintainer.localizer.verify = lambda query, vertex, guess, max_jump: SimpleNamespace(
+            vertex=vertex, pose=matched.copy(), result=result
+        )
+        maintainer.localizer.grids.get = lambda vertex: None
+        calls = []
+
+        def fit(prepared, query, guess, matching, icp=True):
+            calls.append(guess)
+            return matched.copy() if fit_follows else np.asarray(guess, float).copy()
+
+        monkeypatch.setattr(mapping_module, "refine", fit)
+        taken = maintainer._correct(None)
+        return taken, maintainer.counters.ambiguous_corrections, len(calls)
+
+    assert correct(4.4, fit_follows=False) == (False, 1, 1)  # the fit stayed: the match is another minimum
+    assert correct(4.4, fit_follows=True) == (True, 0, 1)  # the fit lands with the match: taken
+    assert correct(0.5, fit_follows=False) == (True, 0, 0)  # a small turn: not checked
+    assert correct(4.4, fit_follows=False, agreement=False) == (True, 0, 0)  # off (the default)
