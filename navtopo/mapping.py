@@ -329,7 +329,7 @@ class MappingCounters:
     refused_turns: int = 0  # tracking: corrections turning the pose more than odometry's drift explains (correction_turn_deg)
     refused_relocalizations: int = 0  # navigating: re-localizations far from the tracked pose (relocalize_gate)
     ambiguous_measurements: int = 0  # mapping: edge measurements left out, a match away from the nearest fit (measure_agreement)
-    ambiguous_corrections: int = 0  # tracking: turning corrections left out, a match away from the nearest fit (correction_agreement)
+    ambiguous_corrections: int = 0  # tracking: turning corrections left out, away from the nearest fit (correction_agreement)
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -608,9 +608,10 @@ class GraphMaintainer:
         self.counters.matches += 1
         if located is None:
             return False
+        turn = abs(float(wrap_angle(float(located.pose[2] - self.pose_in_current[2]))))
         if (
             self.config.correction_agreement
-            and abs(float(wrap_angle(float(located.pose[2] - self.pose_in_current[2])))) > np.radians(self.config.measure_agreement_deg)
+            and turn > np.radians(self.config.measure_agreement_deg)
             and not self._unambiguous(query, located, self.pose_in_current, counted=False)
         ):
             self.counters.ambiguous_corrections += 1
