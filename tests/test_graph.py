@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from crafted_poses import poses_along
 
 from navkit import geometry as se2
 from navkit.errors import BenchError
@@ -248,11 +249,7 @@ def test_a_loop_closure_bends_lidar_hints_that_slid_along_a_corridor():
 
     rng = np.random.default_rng(11)
     corners = [(0.0, 0.0), (30.0, 0.0), (30.0, 12.0), (0.0, 12.0), (0.0, 0.0)]
-    truth = []
-    for (x0, y0), (x1, y1) in zip(corners[:-1], corners[1:], strict=True):
-        yaw = float(np.arctan2(y1 - y0, x1 - x0))
-        for t in np.arange(0.0, np.hypot(x1 - x0, y1 - y0) - 1e-9, 3.0):
-            truth.append(np.array([x0 + t * np.cos(yaw), y0 + t * np.sin(yaw), yaw]))
+    truth = poses_along(corners, 3.0)
     truth = np.array(truth)
     n = len(truth)
     slid = np.clip(truth[:, 0] / 30.0, 0.0, 1.0) * 0.3 * (np.arange(n) <= 10)  # along the first corridor

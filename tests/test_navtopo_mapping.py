@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from crafted_poses import poses_along
 
 from navkit import geometry as se2
 from navkit.follower import FollowerConfig, PathFollower
@@ -491,11 +492,7 @@ def _ring_maintainer(heading_noise_deg: float = 0.1, seed: int = 0):
     from navtopo.scan_matching import MatchingConfig
 
     corners = [(0.0, 0.0), (24.0, 0.0), (24.0, 12.0), (0.0, 12.0), (0.0, 1.5)]
-    truth = []
-    for (x0, y0), (x1, y1) in zip(corners[:-1], corners[1:], strict=True):
-        yaw = float(np.arctan2(y1 - y0, x1 - x0))
-        for t in np.arange(0.0, np.hypot(x1 - x0, y1 - y0) - 1e-9, 3.0):
-            truth.append(np.array([x0 + t * np.cos(yaw), y0 + t * np.sin(yaw), yaw]))
+    truth = poses_along(corners, 3.0)
     truth.append(np.array([0.0, 1.5, -np.pi / 2]))
     graph = TopologicalGraph(4)
     grid = CroppedGrid.from_grid(np.zeros((GridConfig().size, GridConfig().size), np.uint8))
