@@ -76,11 +76,7 @@ def main() -> None:
         return
     for run in args.run_dirs:
         manifest = json.loads((run / "manifest.json").read_text())
-        mapping = json.loads((run / "mapping" / "navtopo.json").read_text())
-        graph, _ = TopologicalGraph.load(run / "maps" / "navtopo")
-        anchors = {round(row[0], 6): np.array(row[1:4]) for row in mapping["anchors"]}
-        origin = np.array(anchors[round(graph.vertices[0].stamp, 6)])
-        truth = np.array([se2.between(origin, anchors[round(v.stamp, 6)]) for v in graph.vertices])
+        graph, truth = load(run)
         hints = np.array([v.pose_hint for v in graph.vertices])
         t0 = time.perf_counter()
         relaxed = relaxed_poses(graph)

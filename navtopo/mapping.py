@@ -139,7 +139,7 @@ class MappingConfig(BaseModel):
         description="navigating: a global re-localization into another location is refused where it puts the robot "
         "farther than this (m), plus relocalize_gate_per_metre per metre of odometry since the last verified pose "
         "and edge_tolerance_per_metre of the graph's path, from the tracked pose carried to that location along the "
-        "graph's shortest path (None: off, configs/navtopo_before_faces.yaml). Among identical rooms the scan matches "
+        "graph's shortest path (None: off). Among identical rooms the scan matches "
         "the room next door as well as the robot's own: standing in the goal's room, a robot tracked to centimetres "
         "re-localized 3.9 m west into its twin and then room after room (a generated aliased wing, noisy; "
         "BENCHMARKS.md, 'Design choices: re-localizing among look-alike rooms')",
@@ -608,10 +608,9 @@ class GraphMaintainer:
         self.counters.matches += 1
         if located is None:
             return False
-        turn = abs(float(wrap_angle(float(located.pose[2] - self.pose_in_current[2]))))
         if (
             self.config.correction_agreement
-            and turn > np.radians(self.config.measure_agreement_deg)
+            and abs(float(wrap_angle(located.pose[2] - self.pose_in_current[2]))) > np.radians(self.config.measure_agreement_deg)
             and not self._unambiguous(query, located, self.pose_in_current, counted=False)
         ):
             self.counters.ambiguous_corrections += 1

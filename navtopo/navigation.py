@@ -615,8 +615,7 @@ class Navigator:
         round_m = self.global_planner.distance_without(route[0], route[0], route[1])
         # no way round at all: any way the union grid holds (twice its sides, a bound for the search)
         bound = min(round_m - self.global_planner.distance(route[1]), 2.0 * sum(union.cells.shape) * union.frame.resolution)
-        straight = float(np.hypot(*(np.asarray(target)[:2] - pose[:2])))
-        if bound <= self.local.config.unknown_detour * straight + 1.0:
+        if bound <= self.local.detour(pose, target):
             return None  # no longer than the plan already allowed
         planned = self.local.plan(union, pose, target, self._recent_obstacles(), detour_m=bound)
         if planned is not None:

@@ -672,6 +672,11 @@ class LocalPlanner:
             return self.wide + self.config.keep_clear
         return self.wide if self.config.ease_tight and radius < self.wide else 0.0
 
+    def detour(self, start: NDArray, target: NDArray) -> float:
+        """The longest way through unknown cells a plan from ``start`` to ``target`` takes (m):
+        ``unknown_detour`` times the straight way, plus 1 m."""
+        return self.config.unknown_detour * float(np.hypot(*(np.asarray(target)[:2] - np.asarray(start)[:2]))) + 1.0
+
     def plan(
         self,
         union: UnionGrid,
@@ -711,7 +716,7 @@ class LocalPlanner:
         # robot in a room no location saw, the pose 0.2 m off, snapped to a corridor a metre away
         # through the wall and drove into it; office02, noisy)
         no_wall = union.cells != OCCUPIED
-        detour = self.config.unknown_detour * float(np.hypot(*(target - start[:2]))) + 1.0 if detour_m is None else detour_m
+        detour = self.detour(start, target) if detour_m is None else detour_m
         reach: NDArray[np.bool_] | None = None
         planned = None
         for level, (kind, radius, medial) in enumerate(self.levels):
