@@ -102,14 +102,14 @@ class PlanningConfig(BaseModel):
         'eased off walls")',
     )
     ease_tight: bool = Field(
-        False,
+        True,
         description="a local path found only without the first level's margin (a door narrower than it allows) "
         "is eased up to the first level's clearance where the free space allows, its points less clear than the "
         "robot held (the door): the shortest such path hugged the corridor's wall on its way to the door, its "
         "stretch off the first level's cells longer than a passage the scan check takes, and cut the jamb's "
-        "corner at the radius (a held-out mirror building's trial 1, precise: collision). Off by default: "
-        "measured on five scenes' maps and four generated tuning maps only (BENCHMARKS.md, 'Design choices: "
-        "ambiguous edge measurements and corrections that turn')",
+        "corner at the radius (a held-out mirror building's trial 1, precise: collision). The default since "
+        "generated tuning mirror 151's collision went with it (BENCHMARKS.md, 'planning.ease_tight as the "
+        "default'); False: the shortest tight path",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(
