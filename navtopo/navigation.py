@@ -206,6 +206,8 @@ class Navigator:
     _latest_new: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))  # this scan's, v_cur's frame
     # ((v_cur, route), route points the lookahead passed, its target there): ``LocalPlanner.aim``
     _aimed: tuple[tuple[int, tuple[int, ...]], int, NDArray[np.float64]] | None = None
+    # the planner level of the last local path to the goal from the goal's own location (``_goal_straight``)
+    _goal_level: int | None = None
     passages: PassageCheck | None = None  # the narrow part of the path being followed, checked against the scan
 
     def reset(self) -> None:
@@ -265,6 +267,7 @@ class Navigator:
         self._shut_since = None
         self._latest_new = np.zeros((0, 2))
         self._aimed = None
+        self._goal_level = None
         self._passages().clear()
 
     # -- the goal server ----------------------------------------------------------------------------
@@ -289,6 +292,7 @@ class Navigator:
         pose = np.asarray(pose, dtype=np.float64)[:2].copy()
         self.goal = Goal(int(vertex), pose, goal_held(self.graph, int(vertex), pose, self.maintainer.grid_config))
         self.status = NavStatus()
+        self._goal_level = None
 
     # -- stepping -------------------------------------------------------------------------------------
 
@@ -521,6 +525,8 @@ class Navigator:
         self._path_vertex = vertex
         self._plan_stamp = obs.stamp
         self._target_is_goal = _same_point(target, goal_point[0])
+        if len(route) == 1 and self._target_is_goal:
+            self._goal_level = planned.level
         self._goal_short = self._target_is_goal and not _same_point(planned.points[-1], target)
         kind, radius, medial = self.local.levels[planned.level]
         # the narrow part checked against the scan: a medial path's stretch off the level's own cells,
@@ -571,9 +577,13 @@ class Navigator:
         robot from beside the goal back to that position and forth again until it was stuck."""
         goal = rest[-1]
         direct = self.local.plan(union, pose, goal, self._recent_obstacles())
-        if direct is None or direct.level > 0:
+        if direct is None or (direct.level > 0 and (self._goal_level is None or direct.level > self._goal_level)):
             # with the margin all the way only: a way by a door at the radius, taken straight from the
-            # side, met the jamb (office02), where the way by the location's position met the door square
+            # side, met the jamb (office02), where the way by the location's position met the door square.
+            # But once the goal's own location planned to the goal on no better level than this, the
+            # direct way: from beside it, that location's position first sent the robot back there and,
+            # the goal beyond cells neither location saw, to and fro between the two locations until the
+            # time ran out (a generated slam-ring, precise)
             return target, planned
         onward = np.vstack([target[None, :2], rest])
         if planned is not None and direct.length > planned.length + float(np.hypot(*np.diff(onward, axis=0).T).sum()):

@@ -810,3 +810,48 @@ def test_a_way_out_of_an_unseen_room_is_taken_rather_than_the_edge_when_the_rout
     assert longer is not None and navigator.counters["longer_ways"] == 1
     assert longer.points[:, 0].max() > 2.0  # out by the door, not through the wall
     assert longer.length > config.unknown_detour * float(np.hypot(*(target - robot[:2]))) + 1.0
+
+
+def test_one_edge_from_the_goal_a_way_through_unseen_cells_goes_straight_once_the_goals_location_needed_it_too():
+    """Location 0 at the origin and the goal's location 1 at x = 6 m along a corridor; the goal is in
+    a room north of the corridor whose door and inside no location saw (unknown cells), the robot in
+    the corridor beside the door. A way by unknown cells is not taken straight from location 0: by
+    location 1's position first. Once location 1 itself planned to the goal on that level (the robot
+    had gone there and back), it is: location 1's position first sent the robot back and forth
+    between the two locations until its time ran out (a generated slam-ring, precise, trial 14)."""
+    from navtopo.navigation import Navigator
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrids
+
+    def world(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cells = np.full(x.shape, UNKNOWN)
+        cells[(np.abs(y) < 1.0) & (x > -3.0) & (x < 9.0)] = FREE  # the corridor along x, seen
+        wall = (np.abs(y) >= 1.0) & (np.abs(y) < 1.2) & (x > -3.0) & (x < 9.0)
+        door = (y > 0) & (x >= 1.0) & (x < 2.0)
+        cells[wall & ~door] = OCCUPIED  # the room's door at x 1..2 left unknown, as the room behind it
+        cells[(y > 4.0) & (y < 4.2) & (x > -1.0) & (x < 4.0)] = OCCUPIED  # but for its far wall
+        return cells
+
+    poses = [[0.0, 0.0, 0.0], [6.0, 0.0, 0.0]]
+    graph = _graph(poses, [(0, 1)], [_painted(pose, world) for pose in poses])
+    union = build_union_grid(graph, 0, GRID, radius=8.0)
+    config = PlanningConfig()
+    navigator = Navigator.__new__(Navigator)
+    navigator.local = LocalPlanner(UnionGrids(graph, GRID, config), 0.3, config)
+    navigator._recent_obstacles = lambda: np.zeros((0, 2))
+    robot, target, goal = np.array([2.5, 0.0, np.pi]), np.array([6.0, 0.0]), np.array([1.5, 2.5])
+    planned = navigator.local.plan(union, robot, target)
+    direct = navigator.local.plan(union, robot, goal)
+    assert planned is not None and planned.level == 0
+    assert direct is not None and navigator.local.levels[direct.level][0] == "unknown"
+    crossing = direct.points[np.argmin(np.abs(direct.points[:, 1] - 1.1))]
+    assert 1.0 < crossing[0] < 2.0 and direct.length < 3.5  # by the door
+
+    navigator._goal_level = None  # not yet at the goal's location: by its position
+    chosen, path = navigator._goal_straight(union, robot, target, planned, goal[None])
+    assert np.allclose(chosen, target) and path is planned
+    navigator._goal_level = 0  # its location reached the goal on the first level: still by its position
+    chosen, path = navigator._goal_straight(union, robot, target, planned, goal[None])
+    assert np.allclose(chosen, target)
+    navigator._goal_level = direct.level  # its location needed the unknown cells too: straight there
+    chosen, path = navigator._goal_straight(union, robot, target, planned, goal[None])
+    assert np.allclose(chosen, goal) and path is not None and path.length < planned.length
