@@ -169,12 +169,13 @@ class MappingConfig(BaseModel):
     )
     measure_agreement_deg: float = Field(1.0, gt=0, description="... and this (degrees)")
     correction_agreement: bool = Field(
-        False,
+        True,
         description="a correction turning the tracked pose by more than measure_agreement_deg is taken only where "
         "its match lands within measure_agreement of the distance-field fit alone from the same guess, as an edge "
         "measurement (counter ambiguous_corrections): at a location's rim, 4.9 m from its centre, a match turned a "
         "generated noisy mirror building's pose 4.4 degrees the wrong way, the fit alone 4.36 degrees from it, and the "
-        "next location's edge was made 5.4 degrees off (off by default: not yet measured on every scene)",
+        "next location's edge was made 5.4 degrees off. The default since replays of seven generated tuning drives "
+        "(BENCHMARKS.md, 'mapping.correction_agreement as the default'); False: every correction's turn is taken",
     )
     closure_radius: float | None = Field(
         2.5,
