@@ -217,7 +217,8 @@ def test_a_correction_turning_the_pose_more_than_the_odometry_since_explains_is_
     assert correct(maintainer_with(gated), 1.5) == (True, pytest.approx(1.5), 0)
     assert correct(maintainer_with(gated), 4.8, 0.9) == (False, pytest.approx(0.0), 1)  # over 2 + 2 x 0.9 = 3.8
     assert correct(maintainer_with(gated), 4.8, 1.5) == (True, pytest.approx(4.8), 0)  # 5° allowed after 1.5 m
-    assert correct(maintainer_with(MappingConfig(correction_turn_deg=None, correction_agreement=False)), 4.8, 0.9) == (True, pytest.approx(4.8), 0)  # off
+    off = MappingConfig(correction_turn_deg=None, correction_agreement=False)
+    assert correct(maintainer_with(off), 4.8, 0.9) == (True, pytest.approx(4.8), 0)
 
     rim = maintainer_with(gated)  # matches at a location's rim, each verified: 0.1 m of odometry since
     assert correct(rim, 1.5, 0.1) == (True, pytest.approx(1.5), 0)
