@@ -497,6 +497,11 @@ class UnionGrids:
 # the local planner
 
 
+def _short_by(planned: PlannedPath, target: NDArray) -> float:
+    """How far (m, grid axes) the path ends from ``target``."""
+    return float(np.hypot(*(planned.points[-1] - target)))
+
+
 class LocalPlanner:
     """Plans in the current location's union grid, to the target the smoothing mode picks."""
 
@@ -710,6 +715,14 @@ class LocalPlanner:
         fits = union.fits(target, "unknown", self.tight) or (
             self.medial is not None and union.fits(target, "unknown", self.medial)
         )
+        if fits and blocked_xy is not None and len(blocked_xy):
+            # nor next to returns the map lacks, which block the cells round them as far: a goal
+            # converted 0.24 m off toward a wall the location saw only from afar (unknown cells, its
+            # wall cells 0.3 m beyond the scan's) was planned to exactly, the path blocked at every
+            # tick and planned again, and the robot turned on the spot 0.5 m from the goal until it
+            # was stuck (a held-out mirror building, noisy)
+            nearest = np.hypot(*(np.asarray(blocked_xy, dtype=np.float64)[:, :2] - target).T).min()
+            fits = bool(nearest >= self.tight)
         ends = union.to_grid_axes(np.vstack([start[None, :2], target[None]]))
         end_cells = union.frame.to_cell(ends)
         # an end snaps to a level's cells only over no wall: the way to them is driven straight (a
@@ -718,7 +731,7 @@ class LocalPlanner:
         no_wall = union.cells != OCCUPIED
         detour = self.detour(start, target) if detour_m is None else detour_m
         reach: NDArray[np.bool_] | None = None
-        planned = None
+        planned = short = None  # short: the way ending nearest a target the robot does not fit at, so far
         for level, (kind, radius, medial) in enumerate(self.levels):
             if known_only and kind != "known":
                 break
@@ -764,7 +777,16 @@ class LocalPlanner:
                 # drawn unknown, and the goal beyond a door 1.9 m away was given up)
                 planned = None
                 continue
+            if not fits and _short_by(planned, ends[1]) > self.wide + union.frame.resolution:
+                # ending far short of a target the robot does not fit at: a level through unknown
+                # cells may come nearer (the known free space ended 0.9 m before a goal beside a
+                # wall the location saw only from afar, the unknown cells up to the wall free)
+                if short is None or _short_by(planned, ends[1]) < _short_by(short, ends[1]) - union.frame.resolution:
+                    short = planned
+                planned = None
+                continue
             break
+        planned = short if planned is None else planned
         if planned is None:
             return None
         points = union.from_grid_axes(planned.points)

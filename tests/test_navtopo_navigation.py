@@ -855,3 +855,34 @@ def test_one_edge_from_the_goal_a_way_through_unseen_cells_goes_straight_once_th
     navigator._goal_level = direct.level  # its location needed the unknown cells too: straight there
     chosen, path = navigator._goal_straight(union, robot, target, planned, goal[None])
     assert np.allclose(chosen, goal) and path is not None and path.length < planned.length
+
+
+def test_a_goal_beside_a_wall_the_map_lacks_is_approached_through_unseen_cells_as_near_as_the_scan_allows():
+    """The location saw the room's far wall only from afar: its known free space ends at x = 7 m, the
+    cells beyond are unknown and its wall cells lie at x = 8 m, where the scan shows the wall at x =
+    7.7 m (new obstacles). The goal, converted 0.2 m from the scan's wall, fits the map: without the
+    scan it is planned to exactly. With it, the robot does not fit there (the path was blocked at
+    every tick and the robot turned on the spot 0.5 m from the goal, a held-out mirror building,
+    noisy); the known free space ends 0.85 m short, and the way through the unseen cells comes to
+    the tight clearance from the scan's wall, 0.15 m from the goal."""
+    from navkit.raster import GridFrame
+    from navtopo.planning import LocalPlanner, PlanningConfig, UnionGrid, UnionGrids
+
+    res = 0.1
+    cells = np.full((60, 100), UNKNOWN, np.uint8)  # rows: y in [0, 6], columns: x in [0, 10]
+    cells[5:55, 5:70] = FREE
+    cells[5:55, 80:82] = OCCUPIED
+    union = UnionGrid(0, cells, GridFrame(np.zeros(2), res))
+    config = PlanningConfig()
+    planner = LocalPlanner(UnionGrids(_graph([[0, 0, 0]], []), GRID, config), 0.3, config)
+    start, goal = np.array([3.0, 3.0, 0.0]), np.array([7.5, 3.0])
+    wall = np.array([[7.7, y] for y in np.arange(1.0, 5.0, 0.05)])
+
+    exact = planner.plan(union, start, goal)
+    assert exact is not None and np.allclose(exact.points[-1], goal)  # the map alone: it fits
+
+    near = planner.plan(union, start, goal, wall)
+    assert near is not None and planner.levels[near.level][0] == "unknown"
+    end = near.points[-1]
+    assert np.hypot(*(wall - end).T).min() >= planner.tight - 1e-6  # clear of the scan's wall
+    assert np.hypot(*(end - goal)) < 0.3  # nearer than the known free space's edge (0.85 m short)
