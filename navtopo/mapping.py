@@ -174,8 +174,9 @@ class MappingConfig(BaseModel):
         "its match lands within measure_agreement of the distance-field fit alone from the same guess, as an edge "
         "measurement (counter ambiguous_corrections): at a location's rim, 4.9 m from its centre, a match turned a "
         "generated noisy mirror building's pose 4.4 degrees the wrong way, the fit alone 4.36 degrees from it, and the "
-        "next location's edge was made 5.4 degrees off. The default since replays of seven generated tuning drives "
-        "(BENCHMARKS.md, 'mapping.correction_agreement as the default'); False: every correction's turn is taken",
+        "next location's edge was made 5.4 degrees off. The default since replays of twelve generated tuning drives "
+        "(BENCHMARKS.md, 'Design choices: corrections that turn only where the fit alone agrees'); False: every "
+        "correction's turn is taken",
     )
     closure_radius: float | None = Field(
         2.5,

@@ -108,8 +108,8 @@ class PlanningConfig(BaseModel):
         "robot held (the door): the shortest such path hugged the corridor's wall on its way to the door, its "
         "stretch off the first level's cells longer than a passage the scan check takes, and cut the jamb's "
         "corner at the radius (a held-out mirror building's trial 1, precise: collision). The default since "
-        "generated tuning mirror 151's collision went with it (BENCHMARKS.md, 'planning.ease_tight as the "
-        "default'); False: the shortest tight path",
+        "generated tuning mirror 151's collision went with it (BENCHMARKS.md, 'NavTopo with the corrections' "
+        "agreement and eased tight paths as the defaults'); False: the shortest tight path",
     )
     snap_radius: float = Field(1.0, ge=0, description="a start or goal in the inflated zone moves to the nearest free cell")
     align_walls: bool = Field(
@@ -777,11 +777,12 @@ class LocalPlanner:
                 # drawn unknown, and the goal beyond a door 1.9 m away was given up)
                 planned = None
                 continue
-            if not fits and _short_by(planned, ends[1]) > self.wide + union.frame.resolution:
+            gap = 0.0 if fits else _short_by(planned, ends[1])
+            if gap > self.wide + union.frame.resolution:
                 # ending far short of a target the robot does not fit at: a level through unknown
                 # cells may come nearer (the known free space ended 0.9 m before a goal beside a
                 # wall the location saw only from afar, the unknown cells up to the wall free)
-                if short is None or _short_by(planned, ends[1]) < _short_by(short, ends[1]) - union.frame.resolution:
+                if short is None or gap < _short_by(short, ends[1]) - union.frame.resolution:
                     short = planned
                 planned = None
                 continue
