@@ -484,9 +484,10 @@ def test_with_drifting_odometry_the_lidar_hints_place_the_locations_in_the_map_f
     np.testing.assert_allclose(loaded.navigator.map_poses, relaxed_poses(graph), atol=1e-9)
 
 
-def _ring_maintainer(heading_noise_deg: float = 0.1, seed: int = 0):
+def _ring_maintainer(heading_noise_deg: float = 0.1, seed: int = 0, mapping=None, edge_sigma: float = 0.02):
     """A mapped ring corridor 24 x 12 m, locations every 3 m made in order (edges measured with
-    small errors), the robot back in the last location, 1.5 m short of the first: its true poses."""
+    small errors, their matches claiming ``edge_sigma``), the robot back in the last location, 1.5 m
+    short of the first: its true poses."""
     from navkit.scan_grid import GridConfig
     from navtopo.local_grid import CroppedGrid
     from navtopo.localization import LocalizationConfig
@@ -499,10 +500,15 @@ def _ring_maintainer(heading_noise_deg: float = 0.1, seed: int = 0):
     graph = TopologicalGraph(4)
     grid = CroppedGrid.from_grid(np.zeros((GridConfig().size, GridConfig().size), np.uint8))
     maintainer = GraphMaintainer(
-        graph, lambda points: np.ones(4, np.float32), GridConfig(), MatchingConfig(), MappingConfig(), LocalizationConfig()
+        graph,
+        lambda points: np.ones(4, np.float32),
+        GridConfig(),
+        MatchingConfig(),
+        mapping or MappingConfig(),
+        LocalizationConfig(),
     )
     rng = np.random.default_rng(seed)
-    covariance = np.diag([0.02**2, 0.02**2, np.radians(0.1) ** 2])  # what the matcher reports
+    covariance = np.diag([edge_sigma**2, edge_sigma**2, np.radians(0.1) ** 2])  # what the matcher reports
     for k, pose in enumerate(truth):
         graph.add_vertex(grid, np.ones(4), pose, float(k), 3.0 * k)
         if k:
@@ -541,6 +547,26 @@ def test_the_closure_check_admits_the_drift_of_a_long_way_round():
         right = se2.between(truth[current], truth[0])
         assert maintainer._edge_acceptable(current, 0, right, covariance), seed
         assert not maintainer._edge_acceptable(current, 1, right, covariance), seed
+
+
+def test_a_look_alike_closure_the_edges_cannot_tell_apart_is_refused_by_the_lidar_hints():
+    """Ground truth: a ring mapped along corridors whose matches fix little (each edge claims 1.2 m,
+    as along a rack hall's aisles), the lidar odometry's hints 0.1 m from the truth. The chain round
+    the ring admits the look-alike one location (3 m) on, and the closure check alone accepts it;
+    with ``closure_hint_gate`` it is refused, as 3 m from where the hints put that location, and
+    counted, while the right closure is still accepted."""
+    from navtopo.mapping import MappingConfig
+
+    for gate, look_alike_accepted in ((None, True), (1.0, False)):
+        maintainer, truth, covariance = _ring_maintainer(mapping=MappingConfig(closure_hint_gate=gate), edge_sigma=1.2)
+        rng = np.random.default_rng(1)
+        for vertex, pose in zip(maintainer.graph.vertices, truth, strict=True):
+            vertex.lidar_hint = pose + rng.normal(0.0, [0.1, 0.1, np.radians(0.2)])
+        current = maintainer.current
+        right = se2.between(truth[current], truth[0])
+        assert maintainer._edge_acceptable(current, 1, right, covariance) is look_alike_accepted
+        assert maintainer.counters.hint_rejected_closures == (0 if look_alike_accepted else 1)
+        assert maintainer._edge_acceptable(current, 0, right, covariance)
 
 
 def test_a_look_alike_closure_in_the_map_is_undone_when_the_right_place_contradicts_it():

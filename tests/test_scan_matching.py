@@ -472,3 +472,30 @@ def test_each_wall_cell_faces_the_side_its_grid_saw_it_from():
     truth = between(south, north)
     assert np.allclose(covariance(grids["south"], grids["north"], truth, faces), np.eye(3))
     assert not np.allclose(covariance(grids["south"], grids["north"], truth, MatchingConfig(face_angle=None)), np.eye(3))
+
+
+def test_a_match_with_a_rival_minimum_as_good_within_its_window_is_found_out():
+    """Two grids 6 m apart along a bare corridor (2.4 m wide): the fit is flat along it, and from the
+    guess moved 0.35 m along the corridor it settles there at least as well as the match did, the
+    rival lying along the corridor, not across it. Two grids of the building (niches, rooms, a
+    hall), near and 5 m apart: every start settles on the match, within 2 cm of the truth."""
+    from navtopo.scan_matching import rival_minimum
+
+    config = MatchingConfig(guess_translation_tolerance=0.35)
+    corridor = RasterWorld(-2.0, -5.0, 60.0, 10.0).add_box(-2.0, 58.0, -5.0, 5.0)
+    corridor.heights[int(round(3.8 / corridor.res)) : int(round(6.2 / corridor.res)), :] = 0.0  # y in [-1.2, 1.2)
+    for a, b, world, ambiguous in (
+        (np.array([20.0, 0.2, 0.0]), np.array([26.0, -0.1, 0.05]), corridor, True),
+        (POSE_A, POSE_B, WORLD, False),
+        (POSE_A, np.array([14.0, -0.2, 0.15]), WORLD, False),
+    ):
+        reference, query = (PreparedGrid(grid_at(pose, world), CONFIG, config) for pose in (a, b))
+        truth = between(a, b)
+        result = match(reference, query, initial_guess=truth, config=config)
+        rival = rival_minimum(reference, query, result, truth, 0.35, 0.1, np.radians(1.0), config)
+        if ambiguous:
+            assert rival is not None
+            step = rival - result.pose
+            assert abs(step[0]) > 0.1 and abs(step[1]) < 0.05
+        else:
+            assert rival is None and pose_error(result, truth)[0] < 0.02
