@@ -99,3 +99,22 @@ def test_a_corrupt_saved_graph_is_refused(tmp_path):
     (tmp_path / "pose_graph.json").write_text('{"format": "something-else/1"}')
     with pytest.raises(ValueError, match="format"):
         PoseGraph.load(tmp_path)
+
+
+def test_a_heading_prior_keeps_the_map_from_turning_where_the_odometry_heading_is_right(loop_drive):
+    """Ground truth: odometry whose heading is exact but which over-reads distance by 5 %. The loop
+    closures pull the lap together; the odometry factors alone leave the headings free to turn with
+    it (0.03 degrees median, 0.11 at worst off the truth), the weak prior on each keyframe's heading
+    (``heading_sigma_deg``) holds them to the odometry's, without moving the positions."""
+    true, scans = loop_drive
+    odometry = drifting_odometry(true, scale=0.05, yaw_per_m=0.0)
+    errors = {}
+    for heading in (None, 1.0):
+        config = PoseGraphConfig(heading_sigma_deg=heading, odometry_sigma_yaw_deg=0.1, odometry_sigma_yaw_deg_per_m=0.1)
+        graph, truth = _build(config, odometry, scans, true)
+        assert len(graph.loops) >= 3
+        poses = graph.optimize()
+        yaw = np.abs(se2.wrap_angle(poses[:, 2] - truth[:, 2]))
+        errors[heading] = (np.median(yaw), yaw.max(), np.hypot(*(poses[:, :2] - truth[:, :2]).T).max())
+    assert errors[1.0][0] < 0.5 * errors[None][0] and errors[1.0][1] < errors[None][1]
+    assert errors[1.0][2] < errors[None][2] + 0.02
