@@ -42,6 +42,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Literal
 
 import numpy as np
@@ -212,14 +213,15 @@ class MappingConfig(BaseModel):
         "99.9 % quantile), else the closure is refused and counted (rejected_closures). None: no check",
     )
     closure_hint_gate: float | None = Field(
-        None,
+        1.0,
         gt=0,
         description="... and, where every location has a lidar-odometry hint, at most this far (m, plus "
         "closure_hint_per_sqrt_metre times the square root of the odometry travelled between the two locations' "
         "making) from where their hints put the two apart, else refused and counted (rejected_closures, "
         "hint_rejected_closures): along a rack hall's aisles the edges fix little, the chain admits a rack's length, "
         "and a generated noisy hall of 9,300 m2 closed a loop 3.97 m off 125 m into its tour, its lidar hints 0.15 m "
-        "from the truth. None: no check",
+        "from the truth; the default since replays of eight generated drives (BENCHMARKS.md, 'Design choices: loop "
+        "closures against the lidar hints'). None: no check (configs/navtopo_before_hint_gate.yaml)",
     )
     closure_hint_per_sqrt_metre: float = Field(0.05, ge=0, description="... (m per square-root metre of odometry)")
     shortcut_radius: float | None = Field(
@@ -818,7 +820,7 @@ class GraphMaintainer:
                 vertex,
                 pose_cv,
                 covariance_cv,
-                lambda located=located, vertex=vertex: self._ambiguous(vertex, query, located.result, located.result.pose),
+                partial(self._ambiguous, vertex, query, located.result, located.result.pose),
             ):
                 continue
             self._new_edge(self.current, vertex, pending[0], pending[1])
@@ -1008,7 +1010,7 @@ class GraphMaintainer:
                 located.vertex,
                 pose_cu,
                 covariance_cu,
-                lambda located=located: self._ambiguous(located.vertex, query, located.result, located.result.pose),
+                partial(self._ambiguous, located.vertex, query, located.result, located.result.pose),
             ):
                 continue
             if self.mapping and not self.graph.has_edge(self.current, located.vertex):
