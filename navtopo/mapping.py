@@ -878,8 +878,9 @@ class GraphMaintainer:
                 if path is not None and path_length < config.shortcut_ratio * max(distance, 1.0):
                     continue
                 self.counters.matches += 1
+                query = self.grids.get(v)
                 located = self.localizer.verify(
-                    self.grids.get(v),
+                    query,
                     u,
                     guess,
                     config.max_neighbour_jump + float(drift[v]),
@@ -897,7 +898,7 @@ class GraphMaintainer:
                 off = between(guess, located.pose)
                 if gated and float(np.hypot(off[0], off[1])) > config.shortcut_hint_agreement:
                     continue  # the hints are a few decimetres off at most: a match farther slid
-                if self._ambiguous(u, self.localizer.grids.get(v), located.result, guess):
+                if self._ambiguous(u, query, located.result, guess):
                     continue
                 turn = config.shortcut_turn_agreement
                 if gated and turn is not None and abs(float(wrap_angle(off[2]))) > np.radians(turn):
@@ -921,7 +922,7 @@ class GraphMaintainer:
         if not config.closure_unique:
             return False
         rival = rival_minimum(
-            self.localizer.grids.get(vertex),
+            self.grids.get(vertex),
             query,
             result,
             centre,
@@ -1098,7 +1099,7 @@ class GraphMaintainer:
             return True
         travelled = abs(a.odometer - b.odometer)
         hinted = between(a.lidar_hint, b.lidar_hint)
-        off = float(np.hypot(*(np.asarray(pose_uv[:2], dtype=np.float64) - hinted[:2])))
+        off = float(np.hypot(pose_uv[0] - hinted[0], pose_uv[1] - hinted[1]))
         return off <= config.closure_hint_gate + config.closure_hint_per_sqrt_metre * float(np.sqrt(travelled))
 
     def _undo_contradicted(
