@@ -79,8 +79,45 @@ def replay(scenario, rec: Recording, overrides: dict[str, Any]) -> dict[str, Any
         "second_half_revisited": revisited_late(stamps, true, travelled, half),
         "unjoined_neighbours": len(unjoined_locations(scenario, stamps, stats["edges_stamped"], true)),
         "counters": stats["counters"],
+        "accepted_checks_over_0.3m": audit_checks(stats["edge_checks"], true),
         "seconds": round(seconds, 1),
     }
+
+
+def audit_checks(checks: list[dict[str, Any]], true: dict[float, np.ndarray], bad: float = 0.3, right: float = 0.15) -> list:
+    """The edges accepted off the truth by more than ``bad`` (m) as measured when checked, each
+    against the graph's way it was checked on: the way's own error, the two's discrepancy, its
+    squared Mahalanobis distance and its offset from the lidar hints; and how many edges accepted
+    within ``right`` of the truth stand at least as far on each of those three (``right_as_far``):
+    where every count is above 0, no gate on that statistic refuses the bad edge and keeps the right
+    ones."""
+    rows = []
+    for check in checks:
+        if check["verdict"] != "accepted":
+            continue
+        truth = se2.between(true[check["stamps"][0]], true[check["stamps"][1]])
+        pose, composed = np.asarray(check["pose"]), np.asarray(check["composed"])
+        rows.append(
+            {
+                "stamps": check["stamps"],
+                "way": check["way"],
+                "error": round(float(np.hypot(*(pose[:2] - truth[:2]))), 3),
+                "way_error": round(float(np.hypot(*(composed[:2] - truth[:2]))), 3),
+                "discrepancy": round(float(np.hypot(*(pose[:2] - composed[:2]))), 3),
+                "distance": check["distance"],
+                "hint_offset": check["hint_offset"],
+            }
+        )
+    rights = [row for row in rows if row["error"] <= right]
+    out = []
+    for row in sorted((row for row in rows if row["error"] > bad), key=lambda row: -row["error"]):
+        row["right_as_far"] = {
+            key: sum(1 for other in rights if other[key] is not None and row[key] is not None and other[key] >= row[key])
+            for key in ("discrepancy", "distance", "hint_offset")
+        }
+        row["right_checked"] = len(rights)
+        out.append(row)
+    return out
 
 
 def main() -> None:

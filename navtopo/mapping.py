@@ -307,6 +307,24 @@ class MappingConfig(BaseModel):
 
 
 @dataclass
+class EdgeCheck:
+    """A new edge (u, v, ``pose``: T_uv measured) checked against the graph's way between its ends:
+    ``way`` "short" (not much longer than the edge: ``edge_tolerance``) or "loop" (the long way round:
+    the hints, the rival check and the closure gate), the pose ``composed`` along it, the squared
+    Mahalanobis ``distance`` between the two (``closure_distance``), the edge's offset from the lidar
+    hints (m; None without them) and the ``verdict``: "accepted" or the check that refused it."""
+
+    u: int
+    v: int
+    pose: tuple[float, ...]
+    way: str
+    composed: tuple[float, ...]
+    distance: float = 0.0
+    hint_offset: float | None = None
+    verdict: str = "accepted"
+
+
+@dataclass
 class EdgeEstimate:
     """An edge's relative pose T_uv (u < v) as the information-weighted mean of its measurements."""
 
@@ -429,6 +447,9 @@ class GraphMaintainer:
         # (current, candidate) -> (T_current,candidate measured, its covariance, the odometer then)
         # loop closures checked against the graph's way round: (u, v, squared Mahalanobis distance, accepted)
         self.closure_checks: list[tuple[int, int, float, bool]] = []
+        # every new edge checked against a way the graph already had between its ends (an audit:
+        # benchmarks/tune_navtopo_mapping.py sets them against the truth)
+        self.edge_checks: list[EdgeCheck] = []
         self._closure_edges: set[tuple[int, int]] = set()  # (u, v), u < v: the edges that closed loops
         self._pending_closures: dict[tuple[int, int], tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
 
@@ -1059,29 +1080,40 @@ class GraphMaintainer:
             self.counters.rejected_edges += 1
             return False
         path, path_length = self.graph.shortest_path(u, v)
-        if path is not None and path_length < self.config.loop_ratio * max(length, 1.0):
-            composed = self.graph.path_pose(path)
-            error = float(np.hypot(*(composed[:2] - pose_uv[:2])))
+        if path is None:
+            return True
+        check = EdgeCheck(u, v, tuple(map(float, pose_uv)), "short", tuple(map(float, self.graph.path_pose(path))))
+        check.distance = self.closure_distance(path, pose_uv, covariance)
+        check.hint_offset = self._hint_offset(u, v, pose_uv)
+        self.edge_checks.append(check)
+        if path_length < self.config.loop_ratio * max(length, 1.0):
+            error = float(np.hypot(*(np.asarray(check.composed[:2]) - pose_uv[:2])))
             if error > self.config.edge_tolerance + self.config.edge_tolerance_per_metre * path_length:
                 self.counters.rejected_edges += 1
+                check.verdict = "disagrees_with_way"
                 return False
-        elif path is not None:
+        else:
+            check.way = "loop"
             if not self._agrees_with_hints(u, v, pose_uv):
                 self.counters.rejected_closures += 1
                 self.counters.hint_rejected_closures += 1
+                check.verdict = "hints"
                 return False
             if ambiguous is not None and ambiguous():
                 self.counters.rejected_closures += 1
+                check.verdict = "rival"
                 return False
             gate = self.config.closure_gate
-            distance = self.closure_distance(path, pose_uv, covariance)
+            distance = check.distance
             if gate is not None and distance > gate and self._undo_contradicted(u, v, path, pose_uv, covariance):
                 path, _ = self.graph.shortest_path(u, v)
                 distance = self.closure_distance(path, pose_uv, covariance) if path is not None else 0.0
             accepted = gate is None or distance <= gate
+            check.distance = distance
             self.closure_checks.append((u, v, round(distance, 2), accepted))
             if not accepted:
                 self.counters.rejected_closures += 1
+                check.verdict = "gate"
                 return False
             self.counters.loop_closures += 1
             self._closure_edges.add((min(u, v), max(u, v)))
@@ -1093,14 +1125,20 @@ class GraphMaintainer:
         where there is no such check or a location has no lidar hint."""
         config = self.config
         a, b = self.graph.vertices[u], self.graph.vertices[v]
-        if config.closure_hint_gate is None or a.lidar_hint is None or b.lidar_hint is None:
-            return True
-        if a.odometer is None or b.odometer is None:
+        off = self._hint_offset(u, v, pose_uv)
+        if config.closure_hint_gate is None or off is None or a.odometer is None or b.odometer is None:
             return True
         travelled = abs(a.odometer - b.odometer)
-        hinted = between(a.lidar_hint, b.lidar_hint)
-        off = float(np.hypot(pose_uv[0] - hinted[0], pose_uv[1] - hinted[1]))
         return off <= config.closure_hint_gate + config.closure_hint_per_sqrt_metre * float(np.sqrt(travelled))
+
+    def _hint_offset(self, u: int, v: int, pose_uv: NDArray[np.float64]) -> float | None:
+        """How far (m) ``T_uv`` puts v from where the two locations' lidar-odometry hints put it;
+        None where a location has no lidar hint."""
+        a, b = self.graph.vertices[u], self.graph.vertices[v]
+        if a.lidar_hint is None or b.lidar_hint is None:
+            return None
+        hinted = between(a.lidar_hint, b.lidar_hint)
+        return round(float(np.hypot(pose_uv[0] - hinted[0], pose_uv[1] - hinted[1])), 4)
 
     def _undo_contradicted(
         self, u: int, v: int, path: list[int], pose_uv: NDArray[np.float64], covariance: NDArray[np.float64] | None

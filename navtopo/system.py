@@ -199,6 +199,19 @@ class NavTopo:
             "closure_checks": [
                 [stamps[u], stamps[v], distance, accepted] for u, v, distance, accepted in self.maintainer.closure_checks
             ],
+            # every new edge checked against the graph's way between its ends (mapping.EdgeCheck)
+            "edge_checks": [
+                {
+                    "stamps": [stamps[check.u], stamps[check.v]],
+                    "pose": [round(x, 4) for x in check.pose],
+                    "way": check.way,
+                    "composed": [round(x, 4) for x in check.composed],
+                    "distance": round(check.distance, 3),
+                    "hint_offset": check.hint_offset,
+                    "verdict": check.verdict,
+                }
+                for check in self.maintainer.edge_checks
+            ],
         }
 
     # -- navigation --------------------------------------------------------------------------------

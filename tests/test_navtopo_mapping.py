@@ -535,6 +535,18 @@ def test_a_loop_closure_to_a_look_alike_place_is_refused_and_the_right_one_accep
     assert not maintainer._edge_acceptable(current, 12, right, covariance)
     assert maintainer.counters.rejected_closures == 2 and maintainer.counters.loop_closures == 1
     assert [accepted for *_, accepted in maintainer.closure_checks] == [True, False, False]
+    # each check kept for the audit: the way round composed from edges 2 cm off each, the right
+    # closure on it within a few decimetres, the look-alike a corridor's 3 m further, refused by the gate
+    checks = maintainer.edge_checks
+    assert [(c.u, c.v, c.way, c.verdict) for c in checks] == [
+        (current, 0, "loop", "accepted"),
+        (current, 1, "loop", "gate"),
+        (current, 12, "loop", "gate"),
+    ]
+    assert np.hypot(*(np.asarray(checks[0].composed[:2]) - right[:2])) < 0.4
+    truth_1 = se2.between(truth[current], truth[1])
+    assert np.hypot(*(np.asarray(checks[1].composed[:2]) - truth_1[:2])) < 0.4
+    assert checks[0].distance < 16.27 < checks[1].distance
 
 
 def test_the_closure_check_admits_the_drift_of_a_long_way_round():
