@@ -266,13 +266,26 @@ class MappingConfig(BaseModel):
         "poses to a few tenths (at most 0.3 on generated noisy drives; BENCHMARKS.md, 'Design choices: shortcuts "
         "seeded by the relaxed poses'). None: the match's",
     )
-    shortcut_guess: Literal["hints", "relaxed"] = Field(
+    shortcut_guess: Literal["hints", "relaxed", "way"] = Field(
         "relaxed",
         description="... seeded by the locations' hints (graph_poses.hint_chain) or by their relaxed map poses "
         "(graph_poses.relaxed_poses: the hints and every edge made while driving, loop closures among them); a match "
         "sharing too little known area to fix the pose (under matching.min_overlap) keeps the seed as the edge: on a "
         "generated noisy mirror building the lidar hints put three such edges 0.31-0.59 m off, the relaxed poses "
-        "0.13-0.19 m",
+        "0.13-0.19 m. 'way': the relaxed poses, but a pair the graph joins by a short way (under loop_ratio times "
+        "their distance) seeded by the pose composed along it (better on one generated noisy hall, worse on three "
+        "other drives: BENCHMARKS.md, 'Design choices: an audit of the edge checks')",
+    )
+    shortcut_seed_agreement: float | None = Field(
+        0.2,
+        gt=0,
+        description="... a pair whose match shares too little known area to fix the pose (under matching.min_overlap) "
+        "keeps its seed as the edge only where the match itself, or the graph's way between the two if short (under "
+        "loop_ratio times their distance), lands within this (m) of the seed; else refused and counted "
+        "(uncorroborated_shortcuts): on a generated noisy hall two shortcuts kept seeds 0.34 m off (the relaxed pose "
+        "of a location its lidar hint pulled), the weak match of one and the short way of the other right to 3 cm; "
+        "right seeds lay within 0.1 m of their ways (BENCHMARKS.md, 'Design choices: an audit of the edge checks'). "
+        "None: every such seed kept (configs/navtopo_before_seed_agreement.yaml)",
     )
     shortcut_detour: float = Field(
         2.0,
@@ -380,6 +393,7 @@ class MappingCounters:
     ambiguous_corrections: int = 0  # tracking: turning corrections left out, away from the nearest fit (correction_agreement)
     hint_rejected_closures: int = 0  # mapping: loop closures refused as far from the lidar hints (closure_hint_gate)
     ambiguous_closures: int = 0  # mapping: closures and shortcuts left out, a rival minimum near the match (closure_unique)
+    uncorroborated_shortcuts: int = 0  # mapping's end: seed-kept shortcuts nothing agreed with (shortcut_seed_agreement)
     reasons: dict[str, int] = field(default_factory=dict)
 
 
@@ -881,7 +895,7 @@ class GraphMaintainer:
         # hints that agree with the edges alone: the lidar odometry's under drifting wheels (a noisy
         # generated ring: the wheels' 3-8 m and 15-20° off between locations met again after a loop,
         # too far for the seeded match, the lidar's 0.1-0.2 m), the wheels' when exact
-        hints = relaxed_poses(self.graph) if config.shortcut_guess == "relaxed" else hint_chain(self.graph)[1]
+        hints = relaxed_poses(self.graph) if config.shortcut_guess in ("relaxed", "way") else hint_chain(self.graph)[1]
         # with lidar hints beside the wheels' the chain took the better of the two, a few decimetres
         # off at most; without them (wheels alone, however they drift) nothing gates the match
         gated = all(vertex.lidar_hint is not None for vertex in vertices)
@@ -898,6 +912,8 @@ class GraphMaintainer:
                 path, path_length = self.graph.shortest_path(u, v)
                 if path is not None and path_length < config.shortcut_ratio * max(distance, 1.0):
                     continue
+                if config.shortcut_guess == "way" and path is not None and path_length < config.loop_ratio * max(distance, 1.0):
+                    guess = self.graph.path_pose(path)
                 self.counters.matches += 1
                 query = self.grids.get(v)
                 located = self.localizer.verify(
@@ -915,6 +931,8 @@ class GraphMaintainer:
                     continue
                 covariance = np.asarray(located.result.covariance, dtype=np.float64)
                 if largest_sigma(covariance) > config.shortcut_max_sigma:
+                    continue
+                if not self._seed_corroborated(located, guess, path, path_length, distance):
                     continue
                 off = between(guess, located.pose)
                 if gated and float(np.hypot(off[0], off[1])) > config.shortcut_hint_agreement:
@@ -934,6 +952,24 @@ class GraphMaintainer:
                 self.counters.shortcuts += 1
                 added += 1
         return added
+
+    def _seed_corroborated(
+        self, located: Localized, guess: NDArray[np.float64], path: list[int] | None, path_length: float, distance: float
+    ) -> bool:
+        """A shortcut whose match shares too little known area to fix the pose keeps its seed
+        (``Localizer.verify``); with ``shortcut_seed_agreement``, only where the match itself or the
+        graph's way between the two, if short (under ``loop_ratio`` times their distance), lands
+        within that of the seed. Else refused and counted (``uncorroborated_shortcuts``)."""
+        agreement = self.config.shortcut_seed_agreement
+        if agreement is None or located.result.overlap >= self.matching.min_overlap:
+            return True
+        if float(np.hypot(*(located.result.pose[:2] - guess[:2]))) <= agreement:
+            return True
+        if path is not None and path_length < self.config.loop_ratio * max(distance, 1.0):
+            if float(np.hypot(*(self.graph.path_pose(path)[:2] - guess[:2]))) <= agreement:
+                return True
+        self.counters.uncorroborated_shortcuts += 1
+        return False
 
     def _ambiguous(self, vertex: int, query: PreparedGrid, result: MatchResult, centre: NDArray[np.float64]) -> bool:
         """With ``closure_unique``: does the fit of ``query`` in ``vertex``'s grid have a minimum as

@@ -768,3 +768,51 @@ def test_a_turning_correction_whose_match_leaves_the_nearest_fit_is_refused_with
     assert correct(4.4, fit_follows=True) == (True, 0, 1)  # the fit lands with the match: taken
     assert correct(0.5, fit_follows=False) == (True, 0, 0)  # a small turn: not checked
     assert correct(4.4, fit_follows=False, agreement=False) == (True, 0, 0)  # off (the default)
+
+
+def test_a_shortcut_seed_nothing_corroborates_is_refused_and_one_the_way_confirms_kept():
+    """Ground truth: locations 0, 1, 2 at (0, 0), (3, 4), (6, 0), the edges 0-1 and 1-2 exact. A
+    shortcut 0-2 whose match shares too little known area to fix the pose keeps its seed (the
+    relaxed poses); with ``shortcut_seed_agreement`` 0.2 m, a seed 0.34 m off, its weak match 0.3 m
+    off the other way, is refused (the way 0-1-2, 10 m for a 6 m pair, composes the truth), and
+    counted; a seed 5 cm off is kept (the way agrees); a match that shares enough is not asked."""
+    from navkit.scan_grid import GridConfig
+    from navtopo.local_grid import CroppedGrid
+    from navtopo.localization import LocalizationConfig, Localized
+    from navtopo.mapping import GraphMaintainer, MappingConfig
+    from navtopo.scan_matching import MatchingConfig, MatchResult
+
+    truth = [np.array([0.0, 0.0, 0.0]), np.array([3.0, 4.0, 0.0]), np.array([6.0, 0.0, 0.0])]
+    graph = TopologicalGraph(4)
+    grid = CroppedGrid.from_grid(np.zeros((GridConfig().size, GridConfig().size), np.uint8))
+    for k, pose in enumerate(truth):
+        graph.add_vertex(grid, np.ones(4), pose, float(k), 5.0 * k)
+    maintainer = GraphMaintainer(
+        graph,
+        lambda points: np.ones(4, np.float32),
+        GridConfig(),
+        MatchingConfig(),
+        MappingConfig(shortcut_seed_agreement=0.2),
+        LocalizationConfig(),
+    )
+    covariance = np.diag([0.02**2, 0.02**2, np.radians(0.2) ** 2])
+    maintainer._new_edge(0, 1, se2.between(truth[0], truth[1]), covariance)
+    maintainer._new_edge(1, 2, se2.between(truth[1], truth[2]), covariance)
+    right = se2.between(truth[0], truth[2])
+    path, length = graph.shortest_path(0, 2)
+    assert path == [0, 1, 2] and length == pytest.approx(10.0)
+
+    def located(seed, match, overlap):
+        result = MatchResult(match, 0.1, True, 0, 0.9, overlap, 100, "guess", 1.0, covariance)
+        return Localized(0, seed.copy(), result)
+
+    off_seed, off_match = right + [0.34, 0.0, 0.0], right + [-0.3, 0.0, 0.0]
+    assert not maintainer._seed_corroborated(located(off_seed, off_match, 0.15), off_seed, path, length, 6.34)
+    assert maintainer.counters.uncorroborated_shortcuts == 1
+    near_seed = right + [0.05, 0.0, 0.0]
+    assert maintainer._seed_corroborated(located(near_seed, off_match, 0.15), near_seed, path, length, 6.05)
+    # the match shares enough known area: its own pose is the edge, checked by the pass's other rules
+    assert maintainer._seed_corroborated(located(off_match, off_match, 0.5), off_seed, path, length, 6.34)
+    # without the way (the graph joins them only the long way round) the weak match alone must agree
+    assert not maintainer._seed_corroborated(located(near_seed, off_match, 0.15), near_seed, None, 0.0, 6.05)
+    assert maintainer.counters.uncorroborated_shortcuts == 2
