@@ -280,12 +280,19 @@ class MappingConfig(BaseModel):
         0.2,
         gt=0,
         description="... a pair whose match shares too little known area to fix the pose (under matching.min_overlap) "
-        "keeps its seed as the edge only where the match itself, or the graph's way between the two if short (under "
-        "loop_ratio times their distance), lands within this (m) of the seed; else refused and counted "
+        "keeps its seed as the edge only where the graph's way between the two, if short (under loop_ratio times their "
+        "distance), lands within this (m) of the seed (shortcut_seed_by); else refused and counted "
         "(uncorroborated_shortcuts): on a generated noisy hall two shortcuts kept seeds 0.34 m off (the relaxed pose "
-        "of a location its lidar hint pulled), the weak match of one and the short way of the other right to 3 cm; "
-        "right seeds lay within 0.1 m of their ways (BENCHMARKS.md, 'Design choices: an audit of the edge checks'). "
-        "None: every such seed kept (configs/navtopo_before_seed_agreement.yaml)",
+        "of a location its lidar hint pulled), the short way of one right to 3 cm; right seeds lay within 0.1 m of "
+        "their ways (BENCHMARKS.md, 'Design choices: an audit of the edge checks'). None: every such seed kept "
+        "(configs/navtopo_before_seed_agreement.yaml)",
+    )
+    shortcut_seed_by: Literal["way", "match_or_way"] = Field(
+        "way",
+        description="... judged by the graph's short way alone, a pair without one keeping its seed: a match under "
+        "min_overlap is too weak to fix the pose, so too weak to speak against the seed ('match_or_way': the weak "
+        "match may corroborate the seed too, and a pair without a short way needs it: on the bundled office02, noisy, "
+        "it refused a shortcut 0.01 m off that a route took, 0.991 -> 0.855)",
     )
     shortcut_detour: float = Field(
         2.0,
@@ -957,17 +964,23 @@ class GraphMaintainer:
         self, located: Localized, guess: NDArray[np.float64], path: list[int] | None, path_length: float, distance: float
     ) -> bool:
         """A shortcut whose match shares too little known area to fix the pose keeps its seed
-        (``Localizer.verify``); with ``shortcut_seed_agreement``, only where the match itself or the
-        graph's way between the two, if short (under ``loop_ratio`` times their distance), lands
-        within that of the seed. Else refused and counted (``uncorroborated_shortcuts``)."""
+        (``Localizer.verify``); with ``shortcut_seed_agreement``, only where the graph's way between
+        the two, if short (under ``loop_ratio`` times their distance), lands within that of the seed
+        (``shortcut_seed_by`` "way": a pair without a short way keeps it; "match_or_way": the weak
+        match may corroborate it too, and a pair without a short way needs it). Else refused and
+        counted (``uncorroborated_shortcuts``)."""
         agreement = self.config.shortcut_seed_agreement
         if agreement is None or located.result.overlap >= self.matching.min_overlap:
             return True
-        if float(np.hypot(*(located.result.pose[:2] - guess[:2]))) <= agreement:
+        short = path is not None and path_length < self.config.loop_ratio * max(distance, 1.0)
+        way = self.graph.path_pose(path) if short and path is not None else None
+        if self.config.shortcut_seed_by == "way" and way is None:
             return True
-        if path is not None and path_length < self.config.loop_ratio * max(distance, 1.0):
-            if float(np.hypot(*(self.graph.path_pose(path)[:2] - guess[:2]))) <= agreement:
-                return True
+        by_match = self.config.shortcut_seed_by == "match_or_way"
+        if by_match and float(np.hypot(*(located.result.pose[:2] - guess[:2]))) <= agreement:
+            return True
+        if way is not None and float(np.hypot(*(way[:2] - guess[:2]))) <= agreement:
+            return True
         self.counters.uncorroborated_shortcuts += 1
         return False
 

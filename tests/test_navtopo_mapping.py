@@ -773,9 +773,10 @@ def test_a_turning_correction_whose_match_leaves_the_nearest_fit_is_refused_with
 def test_a_shortcut_seed_nothing_corroborates_is_refused_and_one_the_way_confirms_kept():
     """Ground truth: locations 0, 1, 2 at (0, 0), (3, 4), (6, 0), the edges 0-1 and 1-2 exact. A
     shortcut 0-2 whose match shares too little known area to fix the pose keeps its seed (the
-    relaxed poses); with ``shortcut_seed_agreement`` 0.2 m, a seed 0.34 m off, its weak match 0.3 m
-    off the other way, is refused (the way 0-1-2, 10 m for a 6 m pair, composes the truth), and
-    counted; a seed 5 cm off is kept (the way agrees); a match that shares enough is not asked."""
+    relaxed poses); with ``shortcut_seed_agreement`` 0.2 m, a seed 0.34 m off is refused (the way
+    0-1-2, 10 m for a 6 m pair, composes the truth), and counted; a seed 5 cm off is kept (the way
+    agrees); a match that shares enough is not asked; without a short way the seed is kept, unless
+    the weak match is asked too (``shortcut_seed_by: match_or_way``) and lands 0.35 m from it."""
     from navkit.scan_grid import GridConfig
     from navtopo.local_grid import CroppedGrid
     from navtopo.localization import LocalizationConfig, Localized
@@ -813,6 +814,12 @@ def test_a_shortcut_seed_nothing_corroborates_is_refused_and_one_the_way_confirm
     assert maintainer._seed_corroborated(located(near_seed, off_match, 0.15), near_seed, path, length, 6.05)
     # the match shares enough known area: its own pose is the edge, checked by the pass's other rules
     assert maintainer._seed_corroborated(located(off_match, off_match, 0.5), off_seed, path, length, 6.34)
-    # without the way (the graph joins them only the long way round) the weak match alone must agree
+    # without a short way (the graph joins them only the long way round) the seed is kept: a match
+    # too weak to fix the pose is too weak to speak against it ...
+    assert maintainer._seed_corroborated(located(near_seed, off_match, 0.15), near_seed, None, 0.0, 6.05)
+    assert maintainer.counters.uncorroborated_shortcuts == 1
+    # ... unless the weak match is asked too (shortcut_seed_by: match_or_way)
+    maintainer.config = MappingConfig(shortcut_seed_agreement=0.2, shortcut_seed_by="match_or_way")
     assert not maintainer._seed_corroborated(located(near_seed, off_match, 0.15), near_seed, None, 0.0, 6.05)
+    assert maintainer._seed_corroborated(located(off_seed, off_seed + [0.1, 0, 0], 0.15), off_seed, None, 0.0, 6.34)
     assert maintainer.counters.uncorroborated_shortcuts == 2
