@@ -466,13 +466,21 @@ class GraphMaintainer:
         self._odometer_at_measure: dict[tuple[int, int], float] = {}
         self._odometer_at_closure_check = -np.inf
         # (current, candidate) -> (T_current,candidate measured, its covariance, the odometer then)
-        # loop closures checked against the graph's way round: (u, v, squared Mahalanobis distance, accepted)
-        self.closure_checks: list[tuple[int, int, float, bool]] = []
         # every new edge checked against a way the graph already had between its ends (an audit:
         # benchmarks/tune_navtopo_mapping.py sets them against the truth)
         self.edge_checks: list[EdgeCheck] = []
         self._closure_edges: set[tuple[int, int]] = set()  # (u, v), u < v: the edges that closed loops
         self._pending_closures: dict[tuple[int, int], tuple[NDArray[np.float64], NDArray[np.float64], float]] = {}
+
+    @property
+    def closure_checks(self) -> list[tuple[int, int, float, bool]]:
+        """The loop closures checked against the graph's way round by the closure gate: (u, v,
+        squared Mahalanobis distance, accepted), from ``edge_checks``."""
+        return [
+            (c.u, c.v, round(c.distance, 2), c.verdict == "accepted")
+            for c in self.edge_checks
+            if c.way == "loop" and c.verdict in ("accepted", "gate")
+        ]
 
     # -- odometry ----------------------------------------------------------------------------------
 
@@ -1159,7 +1167,6 @@ class GraphMaintainer:
                 distance = self.closure_distance(path, pose_uv, covariance) if path is not None else 0.0
             accepted = gate is None or distance <= gate
             check.distance = distance
-            self.closure_checks.append((u, v, round(distance, 2), accepted))
             if not accepted:
                 self.counters.rejected_closures += 1
                 check.verdict = "gate"
@@ -1187,7 +1194,7 @@ class GraphMaintainer:
         if a.lidar_hint is None or b.lidar_hint is None:
             return None
         hinted = between(a.lidar_hint, b.lidar_hint)
-        return round(float(np.hypot(pose_uv[0] - hinted[0], pose_uv[1] - hinted[1])), 4)
+        return float(np.hypot(pose_uv[0] - hinted[0], pose_uv[1] - hinted[1]))
 
     def _undo_contradicted(
         self, u: int, v: int, path: list[int], pose_uv: NDArray[np.float64], covariance: NDArray[np.float64] | None

@@ -207,7 +207,7 @@ class NavTopo:
                     "way": check.way,
                     "composed": [round(x, 4) for x in check.composed],
                     "distance": round(check.distance, 3),
-                    "hint_offset": check.hint_offset,
+                    "hint_offset": None if check.hint_offset is None else round(check.hint_offset, 4),
                     "verdict": check.verdict,
                 }
                 for check in self.maintainer.edge_checks
